@@ -1,0 +1,95 @@
+"""The low-level joint command: the A1's hardware contract, free of ROS.
+
+Mirrors ``gait_msgs/MotorCommand`` and what the A1's low-level interface accepts per motor:
+in HYBRID mode each joint applies ``tau = kp (q* - q) + kd (dq* - dq) + tau_ff`` [N m], clipped to
+the motor limit; in DAMPING mode every joint applies ``tau = -kd_damping * dq``, the robot's safe
+state. Joint order: FR, FL, RR, RL x (hip, thigh, calf).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from a1_common.robot import NUM_JOINTS, A1Constants
+
+# Gains above these are rejected: far beyond what the A1's motors can track (its SDK scales
+# kp and kd into 16-bit fields with these ceilings in mind).
+MAX_KP = 1000.0  # [N m / rad]
+MAX_KD = 100.0  # [N m s / rad]
+# Feed-forward torques beyond this are certainly a bug upstream, not a clip candidate.
+MAX_FEEDFORWARD_TORQUE = 100.0  # [N m]
+
+
+class CommandError(ValueError):
+    """A joint command that must not reach the motors (the message names the field)."""
+
+
+class MotorMode(enum.IntEnum):
+    HYBRID = 0
+    DAMPING = 1
+
+
+def _zeros() -> np.ndarray:
+    return np.zeros(NUM_JOINTS)
+
+
+@dataclass
+class JointCommand:
+    """One command for all 12 joints. Arrays have shape (12,), units rad, rad/s, N m."""
+
+    mode: MotorMode = MotorMode.HYBRID
+    position: np.ndarray = field(default_factory=_zeros)
+    velocity: np.ndarray = field(default_factory=_zeros)
+    kp: np.ndarray = field(default_factory=_zeros)
+    kd: np.ndarray = field(default_factory=_zeros)
+    torque: np.ndarray = field(default_factory=_zeros)
+
+    @classmethod
+    def damping(cls) -> JointCommand:
+        return cls(mode=MotorMode.DAMPING)
+
+    @classmethod
+    def hold(cls, robot: A1Constants, position: np.ndarray | None = None) -> JointCommand:
+        """Joint PD hold of ``position`` (default: the nominal standing pose)."""
+        q = robot.nominal_joint_angles if position is None else position
+        return cls(position=np.array(q, dtype=float), kp=robot.joint_kp.copy(), kd=robot.joint_kd.copy())
+
+    def validated(self) -> JointCommand:
+        """Return a float64 copy, or raise CommandError naming the first bad field."""
+        try:
+            mode = MotorMode(int(self.mode))
+        except (ValueError, TypeError):
+            raise CommandError(
+                f"mode must be one of {[m.value for m in MotorMode]}, got {self.mode!r}"
+            ) from None
+        arrays = {}
+        for name in ("position", "velocity", "kp", "kd", "torque"):
+            try:
+                arr = np.array(getattr(self, name), dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                raise CommandError(f"{name} must be {NUM_JOINTS} numbers") from None
+            if arr.shape != (NUM_JOINTS,):
+                raise CommandError(f"{name} must have {NUM_JOINTS} entries, got {arr.size}")
+            bad = np.flatnonzero(~np.isfinite(arr))
+            if bad.size:
+                raise CommandError(f"{name}[{bad[0]}] is not finite ({arr[bad[0]]})")
+            arrays[name] = arr
+        for name, low, high in (("kp", 0.0, MAX_KP), ("kd", 0.0, MAX_KD),
+                                ("torque", -MAX_FEEDFORWARD_TORQUE, MAX_FEEDFORWARD_TORQUE)):
+            arr = arrays[name]
+            bad = np.flatnonzero((arr < low) | (arr > high))
+            if bad.size:
+                raise CommandError(f"{name}[{bad[0]}] = {arr[bad[0]]} outside [{low}, {high}]")
+        return JointCommand(mode=mode, **arrays)
+
+    def motor_torques(self, q: np.ndarray, dq: np.ndarray, torque_limit: float,
+                      damping_kd: float) -> np.ndarray:
+        """Torque [N m] each motor applies at joint state (q, dq), after the +-limit clip."""
+        if self.mode == MotorMode.DAMPING:
+            tau = -damping_kd * dq
+        else:
+            tau = self.kp * (self.position - q) + self.kd * (self.velocity - dq) + self.torque
+        return np.clip(tau, -torque_limit, torque_limit)

@@ -1,0 +1,71 @@
+"""Safe YAML loading for the stack's configuration files.
+
+Two kinds of file live in ``config/``: plain YAML (the robot constants) and ROS 2 parameter
+files (``<node>: ros__parameters: {...}``), which the nodes get through ``--params-file`` and the
+library cores (tests, trainer) read with :func:`load_node_parameters`. Both are read with
+``yaml.safe_load``; unknown keys are errors, so a typo never silently falls back to a default.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration file or value is missing, malformed or out of range."""
+
+
+def load_yaml_mapping(path: str | os.PathLike, allowed_keys: set[str] | None = None) -> dict[str, Any]:
+    """Load a YAML file whose top level is a mapping; reject unknown keys if a set is given."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {path}: {exc.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: top level must be a mapping, got {type(data).__name__}")
+    if allowed_keys is not None:
+        unknown = sorted(set(data) - allowed_keys)
+        if unknown:
+            raise ConfigError(f"{path}: unknown keys {unknown}; allowed: {sorted(allowed_keys)}")
+    return data
+
+
+def load_node_parameters(path: str | os.PathLike, node_name: str) -> dict[str, Any]:
+    """The ``ros__parameters`` mapping of ``node_name`` in a ROS 2 parameter file."""
+    data = load_yaml_mapping(path)
+    section = data.get(node_name, data.get("/**"))
+    if not isinstance(section, dict) or not isinstance(section.get("ros__parameters"), dict):
+        raise ConfigError(f"{path}: no '{node_name}: ros__parameters:' mapping")
+    return dict(section["ros__parameters"])
+
+
+def config_dir() -> Path:
+    """The repository's ``config/`` folder, or the installed copy of the robot file's folder."""
+    from a1_common.robot import default_config_path  # local: robot imports this module
+
+    return default_config_path().parent
+
+
+def require_range(name: str, value: float, low: float, high: float, *, low_open: bool = False,
+                  high_open: bool = False) -> float:
+    """Return ``value`` as float if inside the interval, else raise naming the field and range."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name} must be a number, got {value!r}") from None
+    lo_ok = v > low if low_open else v >= low
+    hi_ok = v < high if high_open else v <= high
+    if not (lo_ok and hi_ok) or v != v:
+        lb = "(" if low_open else "["
+        hb = ")" if high_open else "]"
+        raise ConfigError(f"{name} must be in {lb}{low}, {high}{hb}, got {value!r}")
+    return v
