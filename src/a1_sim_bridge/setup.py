@@ -13,5 +13,11 @@ setup(
     ],
     install_requires=["setuptools"],
     zip_safe=True,
-    entry_points={"console_scripts": ["sim_bridge = a1_sim_bridge.node:main", "robot_state_monitor = a1_sim_bridge.monitor_node:main"]},
+    entry_points={
+        "console_scripts": [
+            "sim_bridge = a1_sim_bridge.node:main",
+            "joint_hold = a1_sim_bridge.joint_hold_node:main",
+            "robot_state_monitor = a1_sim_bridge.monitor_node:main",
+        ]
+    },
 )

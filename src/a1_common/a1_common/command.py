@@ -93,3 +93,48 @@ class JointCommand:
         else:
             tau = self.kp * (self.position - q) + self.kd * (self.velocity - dq) + self.torque
         return np.clip(tau, -torque_limit, torque_limit)
+
+
+class CommandWatchdog:
+    """Gate between incoming commands and the motors, with the real A1's safety behaviour.
+
+    Invalid commands are rejected (counted, with the reason kept) and never applied; when no valid
+    command arrived for ``timeout`` seconds the motors go to damping. Times are in seconds of
+    whichever clock drives the motors (sim time in simulation, wall time on hardware).
+    """
+
+    def __init__(self, timeout: float) -> None:
+        if not timeout > 0:
+            raise ValueError(f"command timeout must be > 0 s, got {timeout!r}")
+        self.timeout = timeout
+        self.accepted = 0
+        self.rejected = 0
+        self.timeouts = 0  # times the motors fell back to damping for lack of commands
+        self.last_error = ""
+        self._command: JointCommand | None = None
+        self._received_at = float("-inf")
+        self._in_fallback = True
+
+    def offer(self, command: JointCommand, now: float) -> bool:
+        """Accept ``command`` received at ``now`` if valid; return whether it was accepted."""
+        try:
+            self._command = command.validated()
+        except CommandError as exc:
+            self.rejected += 1
+            self.last_error = str(exc)
+            return False
+        self.accepted += 1
+        self._received_at = now
+        return True
+
+    def active(self, now: float) -> JointCommand:
+        """The command to apply at ``now``: the latest valid one, or damping if it is stale."""
+        stale = self._command is None or now - self._received_at > self.timeout
+        if stale and not self._in_fallback:
+            self.timeouts += 1
+        self._in_fallback = stale
+        return JointCommand.damping() if stale else self._command
+
+    @property
+    def in_fallback(self) -> bool:
+        return self._in_fallback

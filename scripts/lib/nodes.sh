@@ -1,0 +1,46 @@
+# Helpers to start the stack's nodes from bash: `ros2 run <pkg> <exe>` where the ros2 CLI exists,
+# otherwise the very executable colcon installed (install/<pkg>/lib/<pkg>/<exe>, which is what
+# `ros2 run` runs). Source after scripts/env.sh.
+
+_GS_PIDS=()
+
+node_command() {  # <pkg> <exe>: print the command that runs a node
+  local pkg=$1 exe=$2
+  if command -v ros2 >/dev/null 2>&1; then
+    echo "ros2 run $pkg $exe"
+  else
+    local path="$GAIT_STACK_ROOT/install/$pkg/lib/$pkg/$exe"
+    [ -x "$path" ] || { echo "nodes.sh: no executable $path; run scripts/setup.sh" >&2; return 1; }
+    echo "$path"
+  fi
+}
+
+start_node() {  # <pkg> <exe> <logdir> [args...]: start in the background, log to <logdir>/<exe>.log
+  local pkg=$1 exe=$2 logdir=$3; shift 3
+  local cmd
+  cmd=$(node_command "$pkg" "$exe") || return 1
+  # setsid: the node leads its own process group, so stop_nodes reaches its children too.
+  setsid $cmd "$@" >"$logdir/$exe.log" 2>&1 &
+  _GS_PIDS+=($!)
+  echo "[nodes] started $pkg/$exe (pid $!)"
+}
+
+run_node() {  # <pkg> <exe> [args...]: run in the foreground
+  local pkg=$1 exe=$2; shift 2
+  local cmd
+  cmd=$(node_command "$pkg" "$exe") || return 1
+  $cmd "$@"
+}
+
+stop_nodes() {  # SIGINT each started node's process group, then SIGKILL what is left after 5 s
+  local pid
+  for pid in "${_GS_PIDS[@]}"; do kill -INT -- "-$pid" 2>/dev/null || true; done
+  for _ in $(seq 50); do
+    local alive=0
+    for pid in "${_GS_PIDS[@]}"; do kill -0 -- "-$pid" 2>/dev/null && alive=1; done
+    [ "$alive" = 0 ] && break
+    sleep 0.1
+  done
+  for pid in "${_GS_PIDS[@]}"; do kill -KILL -- "-$pid" 2>/dev/null || true; done
+  _GS_PIDS=()
+}

@@ -1,0 +1,95 @@
+"""Conversions between the robot-side data classes and ROS messages.
+
+Shared by every bridge (simulation or hardware) so that they publish byte-for-byte the same
+contract. No rclpy import: messages only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from a1_common.command import JointCommand
+from builtin_interfaces.msg import Time
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import Imu, JointState
+
+from a1_sim_bridge.sim import GroundTruth, SensorReadings
+from gait_msgs.msg import FootContacts, MotorCommand
+
+BASE_FRAME = "base_link"
+IMU_FRAME = "imu_link"
+ODOM_FRAME = "odom"
+
+
+def stamp_from_ns(ns: int) -> Time:
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def ns_from_stamp(stamp: Time) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def joint_state_msg(r: SensorReadings, stamp: Time, joint_names: list[str]) -> JointState:
+    msg = JointState()
+    msg.header.stamp = stamp
+    msg.header.frame_id = BASE_FRAME
+    msg.name = joint_names
+    msg.position = r.joint_position.tolist()
+    msg.velocity = r.joint_velocity.tolist()
+    msg.effort = r.joint_torque.tolist()
+    return msg
+
+
+def imu_msg(r: SensorReadings, stamp: Time) -> Imu:
+    msg = Imu()
+    msg.header.stamp = stamp
+    msg.header.frame_id = IMU_FRAME
+    o = r.imu_orientation
+    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = (float(v) for v in o)
+    w = r.imu_angular_velocity
+    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in w)
+    a = r.imu_linear_acceleration
+    msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = (float(v) for v in a)
+    return msg
+
+
+def foot_contacts_msg(r: SensorReadings, stamp: Time) -> FootContacts:
+    msg = FootContacts()
+    msg.header.stamp = stamp
+    msg.header.frame_id = BASE_FRAME
+    msg.contact = [bool(c) for c in r.foot_contact]
+    msg.normal_force = r.foot_force.tolist()
+    return msg
+
+
+def ground_truth_msg(gt: GroundTruth, stamp: Time) -> Odometry:
+    """Pose in the world (as ``odom``), twist in ``base_link`` per REP-105."""
+    msg = Odometry()
+    msg.header.stamp = stamp
+    msg.header.frame_id = ODOM_FRAME
+    msg.child_frame_id = BASE_FRAME
+    pose = msg.pose.pose
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in gt.base_position)
+    o = gt.base_orientation
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (float(v) for v in o)
+    tw = msg.twist.twist
+    tw.linear.x, tw.linear.y, tw.linear.z = (float(v) for v in gt.base_linear_velocity_body)
+    tw.angular.x, tw.angular.y, tw.angular.z = (float(v) for v in gt.base_angular_velocity_body)
+    return msg
+
+
+def joint_command_from_msg(msg: MotorCommand) -> JointCommand:
+    """Unvalidated: the bridge's CommandWatchdog validates and rejects."""
+    return JointCommand(mode=msg.mode, position=np.asarray(msg.position), velocity=np.asarray(msg.velocity),
+                        kp=np.asarray(msg.kp), kd=np.asarray(msg.kd), torque=np.asarray(msg.torque))
+
+
+def motor_command_msg(cmd: JointCommand, stamp: Time) -> MotorCommand:
+    msg = MotorCommand()
+    msg.header.stamp = stamp
+    msg.mode = int(cmd.mode)
+    msg.position = np.asarray(cmd.position, dtype=float)
+    msg.velocity = np.asarray(cmd.velocity, dtype=float)
+    msg.kp = np.asarray(cmd.kp, dtype=float)
+    msg.kd = np.asarray(cmd.kd, dtype=float)
+    msg.torque = np.asarray(cmd.torque, dtype=float)
+    return msg

@@ -1,0 +1,54 @@
+"""joint_hold: hold the A1 in its standing pose with joint PD, answering every /joint_states.
+
+A bring-up tool for the sim bridge and for a hardware bridge alike: it ramps the joint targets from
+the pose it first sees to the nominal stance over ``ramp_time`` (as the A1's safe stand-up does),
+then holds. Each command carries the stamp of the joint state it answers, which is what the sim
+bridge's lockstep mode waits for.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from a1_common.command import JointCommand
+from a1_common.config import require_range
+from a1_common.node_support import declare_parameters, run_node
+from a1_common.robot import a1
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp
+from a1_sim_bridge.node import CONTROL_QOS
+from gait_msgs.msg import MotorCommand
+
+
+class JointHoldNode(Node):
+    def __init__(self) -> None:
+        super().__init__("joint_hold")
+        ramp = declare_parameters(self, {"ramp_time": 1.0})["ramp_time"]
+        self.ramp_time = require_range("ramp_time", ramp, 0.0, 10.0)  # [s]
+        self.robot = a1()
+        self._start: tuple[int, np.ndarray] | None = None
+        self.pub = self.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
+        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
+
+    def _on_joints(self, msg: JointState) -> None:
+        now_ns = ns_from_stamp(msg.header.stamp)
+        q = np.asarray(msg.position, dtype=float)
+        if q.shape != (12,) or not np.all(np.isfinite(q)):
+            self.get_logger().warning("ignoring /joint_states without 12 finite positions",
+                                      throttle_duration_sec=1.0)
+            return
+        if self._start is None or now_ns < self._start[0]:  # first message, or the sim was reset
+            self._start = (now_ns, q)
+        t0, q0 = self._start
+        beta = 1.0 if self.ramp_time == 0 else min((now_ns - t0) * 1e-9 / self.ramp_time, 1.0)
+        target = beta * self.robot.nominal_joint_angles + (1.0 - beta) * q0
+        self.pub.publish(motor_command_msg(JointCommand.hold(self.robot, target), msg.header.stamp))
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node("joint_hold", JointHoldNode, args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,250 @@
+"""Sim bridge node: the A1Sim core behind the same topics a hardware bridge offers.
+
+Publishes at every 2 ms sim step: /joint_states, /imu/data, /foot_contacts, /clock and (evaluation
+only) /sim/ground_truth/odom; subscribes /motor_command. Clock modes:
+- lockstep: after publishing the sensors of step k (stamp t_k), wait for a /motor_command stamped
+  t_k, apply it and advance; if none comes within ``lockstep_timeout`` of wall time, advance anyway
+  (the watchdog then sends the motors to damping after ``command_timeout`` of sim time).
+- realtime: paced by the wall clock at 1/time_step; the latest valid command is applied.
+QoS of the 500 Hz topics: RELIABLE, KEEP_LAST 1, VOLATILE (see docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+
+import rclpy
+from a1_common.command import CommandWatchdog
+from a1_common.config import ConfigError
+from a1_common.node_support import coerce_parameter, declare_parameters, run_node
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu, JointState
+from std_srvs.srv import SetBool, Trigger
+
+from a1_sim_bridge import conversions as cv
+from a1_sim_bridge.sim import A1Sim, SimConfig
+from gait_msgs.msg import FootContacts, MotorCommand
+
+CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+CLOCK_MODES = ("lockstep", "realtime")
+NODE_PARAMETERS = {  # node-only parameters and defaults; the rest configure A1Sim
+    "clock_mode": "lockstep",
+    "command_timeout": 0.05,
+    "lockstep_timeout": 0.5,
+    "publish_ground_truth": True,
+}
+
+
+class SimBridgeNode(Node):
+    def __init__(self) -> None:
+        super().__init__("sim_bridge")
+        params = declare_parameters(self, {**_sim_defaults(SimConfig()), **NODE_PARAMETERS})
+        self.clock_mode = params["clock_mode"]
+        if self.clock_mode not in CLOCK_MODES:
+            raise ConfigError(f"clock_mode must be one of {list(CLOCK_MODES)}, got {self.clock_mode!r}")
+        self.sim = A1Sim(SimConfig.from_parameters(params, ignore=tuple(NODE_PARAMETERS)))
+        self.watchdog = CommandWatchdog(float(params["command_timeout"]))
+        self.lockstep_timeout = float(params["lockstep_timeout"])
+        self.publish_ground_truth = bool(params["publish_ground_truth"])
+        self.dt_ns = round(self.sim.config.time_step * 1e9)
+        self.joint_names = list(self.sim.robot.joint_names)
+
+        self.pub_joints = self.create_publisher(JointState, "/joint_states", CONTROL_QOS)
+        self.pub_imu = self.create_publisher(Imu, "/imu/data", CONTROL_QOS)
+        self.pub_contacts = self.create_publisher(FootContacts, "/foot_contacts", CONTROL_QOS)
+        self.pub_clock = self.create_publisher(Clock, "/clock", CONTROL_QOS)
+        self.pub_truth = self.create_publisher(Odometry, "/sim/ground_truth/odom", CONTROL_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS)
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self.create_service(SetBool, "~/pause", self._on_pause)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.create_timer(1.0, self._publish_diagnostics)
+
+        self._lock = threading.Condition()
+        self._pending_stamp_ns = -1  # lockstep: stamp of the command received for the current step
+        self._late_commands = 0
+        self._lockstep_timeouts = 0
+        self._paused = False
+        self._reset_requested = False
+        self._running = True
+        self._published = 0
+        self._rate_window = (time.monotonic(), 0)
+        self._achieved_rate = 0.0
+        self._overruns = 0
+        self.failure: Exception | None = None
+        self._thread = threading.Thread(target=self._loop, name="sim_loop", daemon=True)
+        self.get_logger().info(
+            f"A1 sim ready: world={self.sim.config.world} clock_mode={self.clock_mode} "
+            f"dt={self.sim.config.time_step}s command_timeout={self.watchdog.timeout}s")
+        self._thread.start()
+
+    # --- callbacks (executor thread) ---------------------------------------------------------
+    def _on_command(self, msg: MotorCommand) -> None:
+        with self._lock:
+            stamp_ns = cv.ns_from_stamp(msg.header.stamp)
+            current_ns = self.sim.steps * self.dt_ns
+            if self.clock_mode == "lockstep" and stamp_ns != current_ns:
+                self._late_commands += 1  # stamped for another step: not for this one
+                return
+            if not self.watchdog.offer(cv.joint_command_from_msg(msg), self.sim.time):
+                self.get_logger().warning(f"rejected /motor_command: {self.watchdog.last_error}",
+                                          throttle_duration_sec=1.0)
+                return
+            self._pending_stamp_ns = stamp_ns
+            self._lock.notify_all()
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        with self._lock:
+            self._reset_requested = True
+            self._lock.notify_all()
+        response.success = True
+        response.message = f"reset requested (world={self.get_parameter('world').value})"
+        return response
+
+    def _on_pause(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
+        with self._lock:
+            self._paused = bool(request.data)
+            self._lock.notify_all()
+        response.success = True
+        response.message = "paused" if request.data else "running"
+        return response
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        """Validate runtime changes; world/seed apply at the next ~/reset."""
+        allowed_runtime = {"world", "seed"}
+        for param in params:
+            if param.name not in allowed_runtime:
+                return SetParametersResult(successful=False,
+                                           reason=f"{param.name} cannot change at runtime; "
+                                                  f"runtime parameters: {sorted(allowed_runtime)}")
+            try:
+                value = coerce_parameter(param.name, param.value, getattr(self.sim.config, param.name))
+                dataclasses.replace(self.sim.config, **{param.name: value}).validated()
+            except ConfigError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    # --- simulation loop (own thread) --------------------------------------------------------
+    def _loop(self) -> None:
+        period = self.sim.config.time_step
+        next_deadline = time.monotonic()
+        try:
+            self._publish(self.sim.sensors())
+            while self._running and rclpy.ok(context=self.context):
+                with self._lock:
+                    if self._reset_requested:
+                        self._do_reset()
+                        next_deadline = time.monotonic()
+                        continue
+                    if self._paused:
+                        self._lock.wait(0.05)
+                        next_deadline = time.monotonic()
+                        continue
+                    if self.clock_mode == "lockstep":
+                        got = self._lock.wait_for(self._lockstep_ready, timeout=self.lockstep_timeout)
+                        if self._reset_requested or not self._running:
+                            continue
+                        if not got:
+                            self._lockstep_timeouts += 1
+                    command = self.watchdog.active(self.sim.time)
+                    readings = self.sim.step(command)
+                self._publish(readings)
+                if self.clock_mode == "realtime":
+                    next_deadline += period
+                    delay = next_deadline - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                    else:
+                        self._overruns += 1
+                        if delay < -0.1:  # far behind (e.g. suspended): do not try to catch up
+                            next_deadline = time.monotonic()
+        except Exception as exc:  # a dead sim loop must be loud, never silent
+            if not rclpy.ok(context=self.context):
+                return  # shutting down (Ctrl-C): publishers are gone, nothing is lost
+            self.get_logger().fatal(f"simulation loop failed, stopping the node: {exc!r}")
+            self.failure = exc
+            self.context.try_shutdown()  # ends spin() in main(), which exits non-zero
+
+    def _lockstep_ready(self) -> bool:
+        """Lockstep wait condition (lock held): this step's command arrived, or stop/reset."""
+        current_ns = self.sim.steps * self.dt_ns
+        return self._pending_stamp_ns == current_ns or self._reset_requested or not self._running
+
+    def _do_reset(self) -> None:
+        world = coerce_parameter("world", self.get_parameter("world").value, "")
+        seed = coerce_parameter("seed", self.get_parameter("seed").value, 0)
+        readings = self.sim.reset(world=world, seed=seed)
+        self.watchdog = CommandWatchdog(self.watchdog.timeout)
+        self._pending_stamp_ns = -1
+        self._reset_requested = False
+        self.get_logger().info(f"simulation reset: world={world} seed={seed}")
+        self._publish(readings)
+
+    def _publish(self, readings) -> None:
+        stamp = cv.stamp_from_ns(self.sim.steps * self.dt_ns)
+        self.pub_clock.publish(Clock(clock=stamp))
+        if self.publish_ground_truth:
+            self.pub_truth.publish(cv.ground_truth_msg(self.sim.ground_truth(), stamp))
+        self.pub_imu.publish(cv.imu_msg(readings, stamp))
+        self.pub_contacts.publish(cv.foot_contacts_msg(readings, stamp))
+        # Joint states last: in lockstep a controller may take it as "this step's sensors are out".
+        self.pub_joints.publish(cv.joint_state_msg(readings, stamp, self.joint_names))
+        self._published += 1
+
+    def _publish_diagnostics(self) -> None:
+        now = time.monotonic()
+        t0, n0 = self._rate_window
+        self._achieved_rate = (self._published - n0) / max(now - t0, 1e-9)
+        self._rate_window = (now, self._published)
+        wd = self.watchdog
+        status = DiagnosticStatus(name="a1_sim_bridge", hardware_id="a1_sim")
+        if wd.in_fallback:
+            status.level = DiagnosticStatus.WARN
+            status.message = "damping: no valid /motor_command"
+        else:
+            status.level = DiagnosticStatus.OK
+            status.message = "commanded"
+        values = {
+            "clock_mode": self.clock_mode, "world": self.sim.config.world,
+            "sim_time_s": f"{self.sim.time:.3f}",
+            "steps": self.sim.steps, "publish_rate_hz": f"{self._achieved_rate:.1f}",
+            "commands_accepted": wd.accepted, "commands_rejected": wd.rejected,
+            "last_rejection": wd.last_error, "damping_fallbacks": wd.timeouts,
+            "late_commands": self._late_commands, "lockstep_timeouts": self._lockstep_timeouts,
+            "realtime_overruns": self._overruns, "paused": self._paused,
+        }
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = cv.stamp_from_ns(self.sim.steps * self.dt_ns)
+        self.pub_diag.publish(msg)
+
+    def shutdown(self) -> None:
+        with self._lock:
+            self._running = False
+            self._lock.notify_all()
+        self._thread.join(timeout=2.0)
+        self.sim.close()
+
+
+def _sim_defaults(config: SimConfig) -> dict:
+    """SimConfig as the flat parameter mapping the node declares (noise fields inlined)."""
+    flat = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name != "noise"}
+    flat.update(dataclasses.asdict(config.noise))
+    return flat
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node("sim_bridge", SimBridgeNode, args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,74 @@
+"""Ground models the A1 can be simulated on, selectable by name.
+
+All worlds share the robot's frame conventions: world frame z up, the robot starts at the origin
+facing +x. Friction values are *effective* foot-ground coefficients: the simulation sets the foot
+links' lateral friction to 1.0, and PyBullet multiplies the two bodies' coefficients.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+WORLD_NAMES = ("flat", "step", "rough", "soft", "slope")
+
+# Soft ground (standing in for grass): compliant contact and lower friction.
+SOFT_CONTACT_STIFFNESS = 2.0e4  # [N/m]
+SOFT_CONTACT_DAMPING = 1.0e3  # [N s/m]
+SOFT_FRICTION_SCALE = 0.6  # soft-ground friction = 0.6 x ground_friction
+
+ROUGH_CELL_SIZE = 0.1  # heightfield resolution [m]
+ROUGH_BLOCK_CELLS = 2  # heights are constant over 2 x 2 cell blocks (steps of 0.2 m)
+ROUGH_EXTENT = 20.0  # side of the rough patch [m]
+
+
+def build_world(client, name: str, *, ground_friction: float, rng: np.random.Generator,
+                step_height: float, step_distance: float, rough_amplitude: float,
+                slope_angle: float) -> tuple[list[int], float]:
+    """Create the ground bodies of world ``name`` in ``client``.
+
+    Returns the body ids and the ground height under the origin [m], where the robot is placed.
+    """
+    if name not in WORLD_NAMES:
+        raise ValueError(f"world must be one of {WORLD_NAMES}, got {name!r}")
+    plane = client.loadURDF("plane.urdf")
+    bodies = [plane]
+    origin_height = 0.0
+    friction = ground_friction
+    if name == "soft":
+        friction = ground_friction * SOFT_FRICTION_SCALE
+        client.changeDynamics(plane, -1, contactStiffness=SOFT_CONTACT_STIFFNESS,
+                              contactDamping=SOFT_CONTACT_DAMPING)
+    elif name == "step":
+        length, width = 5.0, 4.0
+        half = [length / 2, width / 2, step_height / 2]
+        shape = client.createCollisionShape(client.GEOM_BOX, halfExtents=half)
+        visual = client.createVisualShape(client.GEOM_BOX, halfExtents=half, rgbaColor=[0.6, 0.6, 0.6, 1])
+        bodies.append(client.createMultiBody(0, shape, visual,
+                                             [step_distance + length / 2, 0.0, step_height / 2]))
+    elif name == "slope":
+        length, width, thickness = 10.0, 4.0, 0.1
+        half = [length / 2, width / 2, thickness / 2]
+        shape = client.createCollisionShape(client.GEOM_BOX, halfExtents=half)
+        visual = client.createVisualShape(client.GEOM_BOX, halfExtents=half, rgbaColor=[0.6, 0.6, 0.6, 1])
+        # The ramp's top surface starts at ground level 1 m ahead and rises along +x.
+        start = 1.0
+        centre_x = start + (length / 2) * np.cos(slope_angle) + (thickness / 2) * np.sin(slope_angle)
+        centre_z = (length / 2) * np.sin(slope_angle) - (thickness / 2) * np.cos(slope_angle)
+        orientation = client.getQuaternionFromEuler([0.0, -slope_angle, 0.0])
+        bodies.append(client.createMultiBody(0, shape, visual, [centre_x, 0.0, centre_z], orientation))
+    elif name == "rough":
+        cells = round(ROUGH_EXTENT / ROUGH_CELL_SIZE)
+        blocks = cells // ROUGH_BLOCK_CELLS
+        coarse = rng.uniform(0.0, rough_amplitude, size=(blocks, blocks))
+        heights = np.kron(coarse, np.ones((ROUGH_BLOCK_CELLS, ROUGH_BLOCK_CELLS)))
+        shape = client.createCollisionShape(
+            client.GEOM_HEIGHTFIELD, meshScale=[ROUGH_CELL_SIZE, ROUGH_CELL_SIZE, 1.0],
+            heightfieldData=heights.ravel().tolist(), numHeightfieldRows=cells,
+            numHeightfieldColumns=cells)
+        # Bullet centres a heightfield vertically on the middle of its height range.
+        centre_z = 0.5 * (heights.max() + heights.min())
+        bodies.append(client.createMultiBody(0, shape, -1, [0.0, 0.0, centre_z]))
+        origin_height = float(heights.max())  # place the robot above the highest cell
+    for body in bodies:
+        client.changeDynamics(body, -1, lateralFriction=friction, restitution=0.0)
+    return bodies, origin_height

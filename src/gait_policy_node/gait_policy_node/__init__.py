@@ -1,0 +1,1 @@
+"""Gait policies (learned and hand-tuned), the policy node and the offline trainer."""

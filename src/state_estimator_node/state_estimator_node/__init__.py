@@ -1,0 +1,1 @@
+"""Kalman-filter base-velocity estimator: library core (no ROS) and node."""
