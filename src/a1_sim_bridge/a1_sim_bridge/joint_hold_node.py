@@ -22,8 +22,8 @@ from gait_msgs.msg import MotorCommand
 
 
 class JointHoldNode(Node):
-    def __init__(self) -> None:
-        super().__init__("joint_hold")
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("joint_hold", **node_kwargs)
         ramp = declare_parameters(self, {"ramp_time": 1.0})["ramp_time"]
         self.ramp_time = require_range("ramp_time", ramp, 0.0, 10.0)  # [s]
         self.robot = a1()

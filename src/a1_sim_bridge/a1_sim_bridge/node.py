@@ -44,8 +44,9 @@ NODE_PARAMETERS = {  # node-only parameters and defaults; the rest configure A1S
 
 
 class SimBridgeNode(Node):
-    def __init__(self) -> None:
-        super().__init__("sim_bridge")
+    def __init__(self, **node_kwargs) -> None:
+        """``node_kwargs`` go to rclpy's Node (tests pass ``context`` and ``parameter_overrides``)."""
+        super().__init__("sim_bridge", **node_kwargs)
         params = declare_parameters(self, {**_sim_defaults(SimConfig()), **NODE_PARAMETERS})
         self.clock_mode = params["clock_mode"]
         if self.clock_mode not in CLOCK_MODES:
