@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from a1_common.command import JointCommand
-from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp
+from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
 from a1_sim_bridge.joint_hold_node import JointHoldNode
 from a1_sim_bridge.node import CONTROL_QOS, SimBridgeNode
 from rclpy.executors import SingleThreadedExecutor
@@ -71,17 +71,26 @@ def test_lockstep_one_sensor_set_per_command(bridge_graph):
 @pytest.mark.ros
 def test_bad_command_rejected_then_damping_after_timeout(bridge_graph):
     bridge, hold, listener, executor, seen = bridge_graph
-    assert spin_until(executor, lambda: len(seen["joints"]) >= 50, timeout_s=30.0)
-    executor.remove_node(hold)  # the controller goes silent ...
     pub = listener.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
+    assert spin_until(executor, lambda: len(seen["joints"]) >= 50 and pub.get_subscription_count() > 0,
+                      timeout_s=30.0)
+    executor.remove_node(hold)  # the controller goes silent ...
+    # Once a lockstep timeout has passed, none of its commands is still in flight (a late one
+    # would replace ours in the depth-1 queue).
+    assert spin_until(executor, lambda: bridge._lockstep_timeouts >= 1, timeout_s=10.0)
     bad = JointCommand.hold(bridge.sim.robot)
     bad.kp = np.full(12, np.nan)
-    bad_msg = motor_command_msg(bad, seen["joints"][-1].header.stamp)
-    # ... except for one command with NaN gains, stamped for the current step.
-    bad_msg.header.stamp = seen["joints"][-1].header.stamp
+    # ... except for a command with NaN gains, stamped for the step the bridge waits on. (Repeated
+    # until it lands: a new writer may be matched by the reader after its first sample was sent.)
     steps_before = bridge.sim.steps
-    pub.publish(bad_msg)
-    assert spin_until(executor, lambda: bridge.watchdog.rejected >= 1, timeout_s=10.0)
+    bad_msg = motor_command_msg(bad, stamp_from_ns(steps_before * STEP_NS))
+
+    def rejected() -> bool:
+        if bridge.watchdog.rejected == 0:
+            pub.publish(bad_msg)
+        return bridge.watchdog.rejected >= 1
+
+    assert spin_until(executor, rejected, timeout_s=10.0)
     assert "kp" in bridge.watchdog.last_error
     # Without valid commands the sim still advances (lockstep timeout) and falls back to damping
     # after command_timeout = 50 ms of sim time, i.e. 25 steps.

@@ -117,15 +117,25 @@ class CommandWatchdog:
 
     def offer(self, command: JointCommand, now: float) -> bool:
         """Accept ``command`` received at ``now`` if valid; return whether it was accepted."""
+        valid = self.check(command)
+        if valid is not None:
+            self.accept(valid, now)
+        return valid is not None
+
+    def check(self, command: JointCommand) -> JointCommand | None:
+        """The validated command, or None after counting the rejection and keeping its reason."""
         try:
-            self._command = command.validated()
+            return command.validated()
         except CommandError as exc:
             self.rejected += 1
             self.last_error = str(exc)
-            return False
+            return None
+
+    def accept(self, valid: JointCommand, now: float) -> None:
+        """Make an already validated command the one in force from ``now``."""
+        self._command = valid
         self.accepted += 1
         self._received_at = now
-        return True
 
     def active(self, now: float) -> JointCommand:
         """The command to apply at ``now``: the latest valid one, or damping if it is stale."""

@@ -91,15 +91,17 @@ class SimBridgeNode(Node):
     # --- callbacks (executor thread) ---------------------------------------------------------
     def _on_command(self, msg: MotorCommand) -> None:
         with self._lock:
-            stamp_ns = cv.ns_from_stamp(msg.header.stamp)
-            current_ns = self.sim.steps * self.dt_ns
-            if self.clock_mode == "lockstep" and stamp_ns != current_ns:
-                self._late_commands += 1  # stamped for another step: not for this one
-                return
-            if not self.watchdog.offer(cv.joint_command_from_msg(msg), self.sim.time):
+            # Invalid commands are rejected (and counted) whatever their stamp.
+            valid = self.watchdog.check(cv.joint_command_from_msg(msg))
+            if valid is None:
                 self.get_logger().warning(f"rejected /motor_command: {self.watchdog.last_error}",
                                           throttle_duration_sec=1.0)
                 return
+            stamp_ns = cv.ns_from_stamp(msg.header.stamp)
+            if self.clock_mode == "lockstep" and stamp_ns != self.sim.steps * self.dt_ns:
+                self._late_commands += 1  # stamped for another step: not for this one
+                return
+            self.watchdog.accept(valid, self.sim.time)
             self._pending_stamp_ns = stamp_ns
             self._lock.notify_all()
 
