@@ -28,6 +28,12 @@ def ns_from_stamp(stamp: Time) -> int:
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
+def _fill(target, values, fields: str = "xyz") -> None:
+    """Copy a numpy vector into a geometry_msgs Vector3/Point/Quaternion field by field."""
+    for name, value in zip(fields, values, strict=True):
+        setattr(target, name, float(value))
+
+
 def joint_state_msg(r: SensorReadings, stamp: Time, joint_names: list[str]) -> JointState:
     msg = JointState()
     msg.header.stamp = stamp
@@ -43,12 +49,9 @@ def imu_msg(r: SensorReadings, stamp: Time) -> Imu:
     msg = Imu()
     msg.header.stamp = stamp
     msg.header.frame_id = IMU_FRAME
-    o = r.imu_orientation
-    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = (float(v) for v in o)
-    w = r.imu_angular_velocity
-    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in w)
-    a = r.imu_linear_acceleration
-    msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = (float(v) for v in a)
+    _fill(msg.orientation, r.imu_orientation, "xyzw")
+    _fill(msg.angular_velocity, r.imu_angular_velocity)
+    _fill(msg.linear_acceleration, r.imu_linear_acceleration)
     return msg
 
 
@@ -67,13 +70,10 @@ def ground_truth_msg(gt: GroundTruth, stamp: Time) -> Odometry:
     msg.header.stamp = stamp
     msg.header.frame_id = ODOM_FRAME
     msg.child_frame_id = BASE_FRAME
-    pose = msg.pose.pose
-    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in gt.base_position)
-    o = gt.base_orientation
-    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (float(v) for v in o)
-    tw = msg.twist.twist
-    tw.linear.x, tw.linear.y, tw.linear.z = (float(v) for v in gt.base_linear_velocity_body)
-    tw.angular.x, tw.angular.y, tw.angular.z = (float(v) for v in gt.base_angular_velocity_body)
+    _fill(msg.pose.pose.position, gt.base_position)
+    _fill(msg.pose.pose.orientation, gt.base_orientation, "xyzw")
+    _fill(msg.twist.twist.linear, gt.base_linear_velocity_body)
+    _fill(msg.twist.twist.angular, gt.base_angular_velocity_body)
     return msg
 
 
