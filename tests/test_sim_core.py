@@ -165,14 +165,20 @@ def test_reset_reproduces_the_same_run(sim):
     assert run_hold(sim, 0.2) == first
 
 
-def test_sensor_latency_delays_readings():
-    steps = 5
-    with A1Sim(SimConfig(noise=SensorNoise(sensor_latency=steps * 0.002))) as delayed, A1Sim() as direct:
-        cmd = JointCommand.damping()
-        seen_delayed = [delayed.step(cmd).joint_position for _ in range(30)]
-        seen_direct = [direct.step(cmd).joint_position for _ in range(30)]
-        for k in range(steps, 30):
-            np.testing.assert_array_equal(seen_delayed[k], seen_direct[k - steps])
+def test_per_sensor_latency_delays_readings():
+    joint_steps, imu_steps = 5, 2
+    noise = SensorNoise(joint_latency=joint_steps * 0.002, imu_latency=imu_steps * 0.002)
+    with A1Sim(SimConfig(noise=noise)) as delayed, A1Sim() as direct:
+        cmd = JointCommand.damping()  # the robot sags: every reading changes each step
+        seen_delayed = [delayed.step(cmd) for _ in range(30)]
+        seen_direct = [direct.step(cmd) for _ in range(30)]
+        for k in range(joint_steps, 30):
+            np.testing.assert_array_equal(seen_delayed[k].joint_position,
+                                          seen_direct[k - joint_steps].joint_position)
+            np.testing.assert_array_equal(seen_delayed[k].imu_angular_velocity,
+                                          seen_direct[k - imu_steps].imu_angular_velocity)
+            np.testing.assert_array_equal(seen_delayed[k].foot_force, seen_direct[k].foot_force)  # no latency
+        assert not np.array_equal(seen_direct[10].joint_position, seen_direct[5].joint_position)
 
 
 @pytest.mark.parametrize(

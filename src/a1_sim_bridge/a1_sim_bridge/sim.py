@@ -40,7 +40,10 @@ class SensorNoise:
     gyro_bias: float = 0.0  # [rad/s] on each axis
     accel_noise: float = 0.0  # [m/s^2]
     accel_bias: float = 0.0  # [m/s^2] on each axis
-    sensor_latency: float = 0.0  # [s], rounded to whole time steps
+    # Latencies [s], rounded to whole time steps: joint encoders, IMU, foot contact sensors.
+    joint_latency: float = 0.0
+    imu_latency: float = 0.0
+    contact_latency: float = 0.0
 
 
 @dataclass
@@ -76,7 +79,7 @@ class SimConfig:
         require_range("slope_angle", self.slope_angle, -0.5, 0.5)
         require_range("settle_time", self.settle_time, 0.0, 10.0)
         for f in dataclasses.fields(self.noise):
-            high = 1.0 if f.name == "sensor_latency" else 10.0
+            high = 1.0 if f.name.endswith("_latency") else 10.0
             require_range(f.name, getattr(self.noise, f.name), 0.0, high)
         return self
 
@@ -176,11 +179,12 @@ class A1Sim:
         self.time = 0.0
         self.steps = 0
         self._prev_velocity = np.array(p.getBaseVelocity(self._body)[0])
-        latency_steps = round(cfg.noise.sensor_latency / cfg.time_step)
-        self._delay = collections.deque(maxlen=latency_steps + 1)
-        self._latest = self._measure(np.zeros(3))
-        self._delay.append(self._latest)
-        return self._latest
+        noise = cfg.noise
+        self._latency_steps = {name: round(getattr(noise, name + "_latency") / cfg.time_step)
+                               for name in ("joint", "imu", "contact")}
+        self._history = collections.deque(maxlen=max(self._latency_steps.values()) + 1)
+        self._history.append(self._measure(np.zeros(3)))
+        return self.sensors()
 
     def _index_joints(self) -> None:
         by_name = {}
@@ -204,9 +208,8 @@ class A1Sim:
         accel_world = self._physics_step(command.validated())
         self.time += self.config.time_step
         self.steps += 1
-        self._latest = self._measure(accel_world)
-        self._delay.append(self._latest)
-        return self._delay[0]
+        self._history.append(self._measure(accel_world))
+        return self.sensors()
 
     def _physics_step(self, command: JointCommand) -> np.ndarray:
         p = self._p
@@ -256,8 +259,22 @@ class A1Sim:
             imu_linear_acceleration=specific_force, foot_contact=contact, foot_force=force)
 
     def sensors(self) -> SensorReadings:
-        """The readings of the current step as the controller sees them (after any latency)."""
-        return self._delay[0]
+        """The readings of the current step as the controller sees them, each sensor delayed by
+        its latency (until the history fills after a reset, the oldest reading stands in)."""
+        history = self._history
+
+        def delayed(kind: str) -> SensorReadings:
+            return history[max(len(history) - 1 - self._latency_steps[kind], 0)]
+
+        now, joints, imu, contacts = history[-1], delayed("joint"), delayed("imu"), delayed("contact")
+        if joints is imu is contacts is now:
+            return now
+        return dataclasses.replace(
+            now, joint_position=joints.joint_position, joint_velocity=joints.joint_velocity,
+            joint_torque=joints.joint_torque, imu_orientation=imu.imu_orientation,
+            imu_angular_velocity=imu.imu_angular_velocity,
+            imu_linear_acceleration=imu.imu_linear_acceleration,
+            foot_contact=contacts.foot_contact, foot_force=contacts.foot_force)
 
     def ground_truth(self) -> GroundTruth:
         p = self._p
