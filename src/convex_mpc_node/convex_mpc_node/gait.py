@@ -1,0 +1,143 @@
+"""Gait parameters and the phase integrator of the paper (Yang et al. 2021, section 3.2).
+
+One phase per leg in [0, 2pi): phi_1 (FR) advances by 2 pi f dt every control step, the other legs
+follow at fixed offsets phi_i = phi_1 + theta_i. A leg swings while phi < 2 pi p_swing and stands
+afterwards; each cycle starts with lift-off. Leg order: FR, FL, RR, RL.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from a1_common.config import ConfigError, config_dir, load_yaml_mapping, require_range
+from a1_common.robot import NUM_LEGS
+
+TWO_PI = 2.0 * math.pi
+MAX_FREQUENCY = 4.0  # [Hz], paper: f in (0, 4]
+# Measured-state thresholds on the normalised phase within swing / stance (reference values):
+# contact after this much of the swing is an early touchdown; no contact after this much of
+# the stance is a lost contact (earlier, the foot is just landing).
+EARLY_CONTACT_SWING_FRACTION = 0.5
+LOST_CONTACT_STANCE_FRACTION = 0.1
+
+
+class LegState(enum.IntEnum):
+    """Same values as the LEG_* constants of gait_msgs/GaitState."""
+
+    SWING = 0
+    STANCE = 1
+    EARLY_CONTACT = 2
+    LOST_CONTACT = 3
+
+
+@dataclass(frozen=True)
+class GaitParams:
+    """f [Hz] in (0, 4], p_swing in (0, 1), phase offsets [rad] of FR, FL, RR, RL in [0, 2pi), FR = 0."""
+
+    stepping_frequency: float
+    swing_ratio: float
+    phase_offsets: tuple[float, float, float, float]
+
+    def validated(self) -> GaitParams:
+        f = require_range("stepping_frequency", self.stepping_frequency, 0.0, MAX_FREQUENCY, low_open=True)
+        p = require_range("swing_ratio", self.swing_ratio, 0.0, 1.0, low_open=True, high_open=True)
+        offsets = tuple(float(v) for v in np.asarray(self.phase_offsets, dtype=float).reshape(-1))
+        if len(offsets) != NUM_LEGS:
+            raise ConfigError(
+                f"phase_offsets must have {NUM_LEGS} entries (FR, FL, RR, RL), got {len(offsets)}")
+        for leg, theta in enumerate(offsets):
+            require_range(f"phase_offsets[{leg}]", theta, 0.0, TWO_PI, high_open=True)
+        if offsets[0] != 0.0:
+            raise ConfigError(f"phase_offsets[0] (FR, the reference leg) must be 0, got {offsets[0]}")
+        return GaitParams(f, p, offsets)  # type: ignore[arg-type]
+
+
+def load_hand_tuned_gaits(path=None) -> dict[str, GaitParams]:
+    """The paper's hand-tuned gaits (Table 1) from ``config/gaits.yaml``, validated."""
+    path = path or config_dir() / "gaits.yaml"
+    data = load_yaml_mapping(path)
+    gaits = {}
+    keys = {"stepping_frequency", "swing_ratio", "phase_offsets"}
+    for name, entry in data.items():
+        if not isinstance(entry, dict) or set(entry) != keys:
+            raise ConfigError(f"{path}: gait '{name}' needs exactly the keys {sorted(keys)}")
+        try:
+            gaits[name] = GaitParams(**entry).validated()
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: gait '{name}': {exc}") from None
+    return gaits
+
+
+class PhaseIntegrator:
+    """Advances the leg phases at the control rate and turns them into a contact schedule."""
+
+    def __init__(self, params: GaitParams) -> None:
+        self.params = params.validated()
+        self.phase_fr = 0.0  # phi_1 [rad], in [0, 2pi)
+
+    def reset(self) -> None:
+        """All legs restart at the beginning of their cycle (FR lifts off first)."""
+        self.phase_fr = 0.0
+
+    def set_params(self, params: GaitParams) -> None:
+        """New gait parameters; phi_1 continues from where it is, without a jump."""
+        self.params = params.validated()
+
+    def step(self, dt: float) -> None:
+        """Advance by ``dt`` seconds: phi_1 <- phi_1 + 2 pi f dt (mod 2 pi)."""
+        self.phase_fr = (self.phase_fr + TWO_PI * self.params.stepping_frequency * dt) % TWO_PI
+
+    @property
+    def phases(self) -> np.ndarray:
+        """phi_i = phi_1 + theta_i of each leg [rad], in [0, 2pi)."""
+        return (self.phase_fr + np.asarray(self.params.phase_offsets)) % TWO_PI
+
+    @property
+    def swing_threshold(self) -> float:
+        return TWO_PI * self.params.swing_ratio
+
+    @property
+    def desired_contact(self) -> np.ndarray:
+        """True for legs the schedule wants in stance now."""
+        return self.phases >= self.swing_threshold
+
+    def normalised_phase(self) -> np.ndarray:
+        """Progress in [0, 1) through the current swing or stance of each leg."""
+        phi, cut = self.phases, self.swing_threshold
+        return np.where(phi < cut, phi / cut, (phi - cut) / (TWO_PI - cut))
+
+    @property
+    def stance_duration(self) -> float:
+        """T_stance = (1 - p_swing) / f [s]."""
+        return (1.0 - self.params.swing_ratio) / self.params.stepping_frequency
+
+    @property
+    def swing_duration(self) -> float:
+        return self.params.swing_ratio / self.params.stepping_frequency
+
+    def leg_states(self, foot_contact: np.ndarray) -> np.ndarray:
+        """Measured leg states: the schedule, overridden by early touchdown and lost contact."""
+        desired = self.desired_contact
+        progress = self.normalised_phase()
+        contact = np.asarray(foot_contact, dtype=bool)
+        states = np.where(desired, LegState.STANCE, LegState.SWING)
+        states[desired & ~contact & (progress > LOST_CONTACT_STANCE_FRACTION)] = LegState.LOST_CONTACT
+        states[~desired & contact & (progress > EARLY_CONTACT_SWING_FRACTION)] = LegState.EARLY_CONTACT
+        return states
+
+    def contact_schedule(self, horizon: int, step: float,
+                         foot_contact: np.ndarray | None = None) -> np.ndarray:
+        """Planned contact (horizon, 4) at t = k * step, k = 0..horizon-1, at the current f.
+
+        Row 0 is replaced by the measured states when ``foot_contact`` is given: a leg in STANCE,
+        EARLY_CONTACT or LOST_CONTACT counts as in contact for the current step.
+        """
+        k = np.arange(horizon)[:, None]
+        future = (self.phases[None, :] + TWO_PI * self.params.stepping_frequency * step * k) % TWO_PI
+        plan = future >= self.swing_threshold
+        if foot_contact is not None and horizon > 0:
+            plan[0] = self.leg_states(foot_contact) != LegState.SWING
+        return plan
