@@ -52,7 +52,10 @@ want="$(cat "$ROOT/requirements.txt" "$ROOT/constraints.txt" | sha256sum | cut -
 if [ "$FORCE" = 1 ] || [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   say "installing pinned dependencies (first time: about 3 minutes)"
   log="$VENV/pip-install.log"
-  if ! "$VPY" -m pip install --disable-pip-version-check -r "$ROOT/requirements.txt" -c "$ROOT/constraints.txt" >"$log" 2>&1; then
+  reinstall=()
+  [ "$FORCE" = 1 ] && reinstall=(--force-reinstall)
+  if ! "$VPY" -m pip install --disable-pip-version-check "${reinstall[@]}" -r "$ROOT/requirements.txt" \
+      -c "$ROOT/constraints.txt" >"$log" 2>&1; then
     tail -n 25 "$log" >&2
     die "pip install failed (full log: $log). Check network access to PyPI and that the machine is x86_64 Linux with glibc >= 2.28."
   fi

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from a1_common.command import JointCommand
+from a1_common.config import ConfigError
 from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
 from a1_sim_bridge.joint_hold_node import JointHoldNode
 from a1_sim_bridge.node import CONTROL_QOS, SimBridgeNode
@@ -96,3 +97,35 @@ def test_bad_command_rejected_then_damping_after_timeout(bridge_graph):
     # after command_timeout = 50 ms of sim time, i.e. 25 steps.
     assert spin_until(executor, lambda: bridge.sim.steps >= steps_before + 30, timeout_s=30.0)
     assert bridge.watchdog.in_fallback and bridge.watchdog.timeouts == 1
+
+
+@pytest.mark.ros
+def test_unknown_or_bad_parameters_are_config_errors(rclpy_context):
+    with pytest.raises(ConfigError, match="wrold"):
+        SimBridgeNode(context=rclpy_context, parameter_overrides=[Parameter("wrold", value="rough")])
+    with pytest.raises(ConfigError, match="lockstep_timeout"):
+        SimBridgeNode(context=rclpy_context, parameter_overrides=[Parameter("lockstep_timeout", value=-1.0)])
+    with pytest.raises(ConfigError, match="command_timeout"):
+        SimBridgeNode(context=rclpy_context, parameter_overrides=[Parameter("command_timeout", value=0.0)])
+
+
+@pytest.mark.ros
+def test_lockstep_waits_for_the_first_command(rclpy_context):
+    """Until a controller answers, the sim holds step 0 and offers its sensors again (reproducible runs)."""
+    overrides = [Parameter("lockstep_timeout", value=0.05), Parameter("settle_time", value=0.1)]
+    bridge = SimBridgeNode(context=rclpy_context, parameter_overrides=overrides)
+    listener = Node("listener", context=rclpy_context)
+    joints = []
+    listener.create_subscription(JointState, "/joint_states", joints.append, CONTROL_QOS)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(bridge)
+    executor.add_node(listener)
+    try:
+        assert spin_until(executor, lambda: len(joints) >= 3 and bridge._lockstep_timeouts >= 5, 20.0)
+        assert bridge.sim.steps == 0
+        assert {ns_from_stamp(m.header.stamp) for m in joints} == {0}
+    finally:
+        executor.shutdown()
+        bridge.shutdown()
+        bridge.destroy_node()
+        listener.destroy_node()

@@ -107,6 +107,15 @@ def test_watchdog_falls_back_to_damping_and_counts():
     assert wd.active(0.08).mode == MotorMode.HYBRID
 
 
+def test_watchdog_timeout_is_the_same_number_of_steps_at_any_time():
+    for start_step in (0, 50_000, 1_234_567):
+        wd = CommandWatchdog(timeout=0.05)
+        t0 = start_step * 0.002
+        wd.offer(JointCommand(), now=t0)
+        assert wd.active((start_step + 25) * 0.002).mode == MotorMode.HYBRID
+        assert wd.active((start_step + 26) * 0.002).mode == MotorMode.DAMPING
+
+
 def test_damping_lowers_the_robot_slowly(sim):
     """With damping only (no stiffness) the robot sinks, without violent torques."""
     sim.reset()
@@ -189,6 +198,8 @@ def test_per_sensor_latency_delays_readings():
         ({"time_step": 0.5}, "time_step"),
         ({"seed": -1}, "seed"),
         ({"noise": SensorNoise(gyro_noise=-1.0)}, "gyro_noise"),
+        ({"noise": SensorNoise(imu_latency=0.003)}, "multiple of time_step"),
+        ({"world": "slope", "slope_angle": -0.1}, "slope_angle"),
     ],
 )
 def test_bad_sim_config_names_the_field(changes, match):

@@ -1,35 +1,37 @@
-# Helpers to start the stack's nodes from bash: `ros2 run <pkg> <exe>` where the ros2 CLI exists,
-# otherwise the very executable colcon installed (install/<pkg>/lib/<pkg>/<exe>, which is what
-# `ros2 run` runs). Source after scripts/env.sh.
+# Helpers to start the stack's nodes from bash scripts: `ros2 run <pkg> <exe>` where the ros2 CLI
+# exists, otherwise the very executable colcon installed (install/<pkg>/lib/<pkg>/<exe>, which is
+# what `ros2 run` runs). Source after scripts/env.sh, in a non-interactive script.
 
 _GS_PIDS=()
 
-node_command() {  # <pkg> <exe>: print the command that runs a node
+_node_command() {  # <pkg> <exe>: set the array _GS_CMD to the command that runs a node
   local pkg=$1 exe=$2
   if command -v ros2 >/dev/null 2>&1; then
-    echo "ros2 run $pkg $exe"
+    _GS_CMD=(ros2 run "$pkg" "$exe")
   else
     local path="$GAIT_STACK_ROOT/install/$pkg/lib/$pkg/$exe"
     [ -x "$path" ] || { echo "nodes.sh: no executable $path; run scripts/setup.sh" >&2; return 1; }
-    echo "$path"
+    _GS_CMD=("$path")
   fi
 }
 
 start_node() {  # <pkg> <exe> <logdir> [args...]: start in the background, log to <logdir>/<exe>.log
   local pkg=$1 exe=$2 logdir=$3; shift 3
-  local cmd
-  cmd=$(node_command "$pkg" "$exe") || return 1
+  _node_command "$pkg" "$exe" || return 1
   # setsid: the node leads its own process group, so stop_nodes reaches its children too.
-  setsid $cmd "$@" >"$logdir/$exe.log" 2>&1 &
+  setsid "${_GS_CMD[@]}" "$@" >"$logdir/$exe.log" 2>&1 &
   _GS_PIDS+=($!)
-  echo "[nodes] started $pkg/$exe (pid $!)"
+  echo "[nodes] started $pkg/$exe (pid $!, log $logdir/$exe.log)"
 }
 
-run_node() {  # <pkg> <exe> [args...]: run in the foreground
-  local pkg=$1 exe=$2; shift 2
-  local cmd
-  cmd=$(node_command "$pkg" "$exe") || return 1
-  $cmd "$@"
+check_nodes() {  # fail with the log's tail if a started node has already exited
+  local pid
+  for pid in "${_GS_PIDS[@]}"; do
+    if ! kill -0 "$pid" 2>/dev/null; then
+      echo "[nodes] ERROR: node with pid $pid exited early; see its log above" >&2
+      return 1
+    fi
+  done
 }
 
 stop_nodes() {  # SIGINT each started node's process group, then SIGKILL what is left after 5 s

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from a1_common.config import require_range
 from a1_common.robot import NUM_JOINTS, A1Constants
 
 # Gains above these are rejected: far beyond what the A1's motors can track (its SDK scales
@@ -104,10 +105,9 @@ class CommandWatchdog:
     """
 
     def __init__(self, timeout: float) -> None:
-        if not timeout > 0:
-            raise ValueError(f"command timeout must be > 0 s, got {timeout!r}")
-        self.timeout = timeout
+        self.timeout = require_range("command_timeout", timeout, 0.0, 10.0, low_open=True)  # [s]
         self.accepted = 0
+        self.accepted_since_reset = 0
         self.rejected = 0
         self.timeouts = 0  # times the motors fell back to damping for lack of commands
         self.last_error = ""
@@ -135,15 +135,24 @@ class CommandWatchdog:
         """Make an already validated command the one in force from ``now``."""
         self._command = valid
         self.accepted += 1
+        self.accepted_since_reset += 1
         self._received_at = now
 
     def active(self, now: float) -> JointCommand:
         """The command to apply at ``now``: the latest valid one, or damping if it is stale."""
-        stale = self._command is None or now - self._received_at > self.timeout
+        # The tolerance keeps the timeout a whole number of steps whatever the absolute time.
+        stale = self._command is None or now - self._received_at > self.timeout + 1e-9
         if stale and not self._in_fallback:
             self.timeouts += 1
         self._in_fallback = stale
         return JointCommand.damping() if stale else self._command
+
+    def clear_command(self) -> None:
+        """Forget the command in force (after a reset); counters are kept for diagnostics."""
+        self._command = None
+        self._received_at = float("-inf")
+        self._in_fallback = True
+        self.accepted_since_reset = 0
 
     @property
     def in_fallback(self) -> bool:

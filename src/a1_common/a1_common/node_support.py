@@ -15,9 +15,22 @@ from rcl_interfaces.msg import ParameterDescriptor
 
 from a1_common.config import ConfigError
 
+# Parameters rclpy itself understands; any other override the node did not declare is a typo.
+_RCLPY_PARAMETERS = {"use_sim_time", "start_type_description_service"}
+
 
 def declare_parameters(node, defaults: dict[str, Any]) -> dict[str, Any]:
-    """Declare every parameter of ``defaults`` on ``node``; return the values, typed like the defaults."""
+    """Declare every parameter of ``defaults`` on ``node``; return the values, typed like the defaults.
+
+    Overrides (``-p`` or ``--params-file``) naming a parameter the node does not have are an error,
+    not silently ignored as rclpy would.
+    """
+    overrides = set(getattr(node, "_parameter_overrides", {}))
+    unknown = sorted(k for k in overrides - set(defaults) - _RCLPY_PARAMETERS
+                     if not k.startswith("qos_overrides."))
+    if unknown:
+        raise ConfigError(f"unknown parameters {unknown} for node {node.get_name()}; "
+                          f"allowed: {sorted(defaults)}")
     values = {}
     for name, default in defaults.items():
         descriptor = ParameterDescriptor(dynamic_typing=True)

@@ -28,18 +28,20 @@ class JointHoldNode(Node):
         self.ramp_time = require_range("ramp_time", ramp, 0.0, 10.0)  # [s]
         self.robot = a1()
         self._start: tuple[int, np.ndarray] | None = None
+        self._last_ns = -1
         self.pub = self.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
         self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
 
     def _on_joints(self, msg: JointState) -> None:
         now_ns = ns_from_stamp(msg.header.stamp)
         q = np.asarray(msg.position, dtype=float)
-        if q.shape != (12,) or not np.all(np.isfinite(q)):
-            self.get_logger().warning("ignoring /joint_states without 12 finite positions",
-                                      throttle_duration_sec=1.0)
+        if list(msg.name) != list(self.robot.joint_names) or q.shape != (12,) or not np.all(np.isfinite(q)):
+            self.get_logger().warning("ignoring /joint_states without the 12 A1 joints in motor order "
+                                      "and finite positions", throttle_duration_sec=1.0)
             return
-        if self._start is None or now_ns < self._start[0]:  # first message, or the sim was reset
+        if self._start is None or now_ns <= self._last_ns:  # first message, or time went back (reset)
             self._start = (now_ns, q)
+        self._last_ns = now_ns
         t0, q0 = self._start
         beta = 1.0 if self.ramp_time == 0 else min((now_ns - t0) * 1e-9 / self.ramp_time, 1.0)
         target = beta * self.robot.nominal_joint_angles + (1.0 - beta) * q0

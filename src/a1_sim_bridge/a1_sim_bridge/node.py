@@ -14,10 +14,11 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+import traceback
 
 import rclpy
 from a1_common.command import CommandWatchdog
-from a1_common.config import ConfigError
+from a1_common.config import ConfigError, require_range
 from a1_common.node_support import coerce_parameter, declare_parameters, run_node
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
@@ -52,8 +53,9 @@ class SimBridgeNode(Node):
         if self.clock_mode not in CLOCK_MODES:
             raise ConfigError(f"clock_mode must be one of {list(CLOCK_MODES)}, got {self.clock_mode!r}")
         self.sim = A1Sim(SimConfig.from_parameters(params, ignore=tuple(NODE_PARAMETERS)))
-        self.watchdog = CommandWatchdog(float(params["command_timeout"]))
-        self.lockstep_timeout = float(params["lockstep_timeout"])
+        self.watchdog = CommandWatchdog(params["command_timeout"])
+        self.lockstep_timeout = require_range("lockstep_timeout", params["lockstep_timeout"], 0.0, 10.0,
+                                              low_open=True)
         self.publish_ground_truth = bool(params["publish_ground_truth"])
         self.dt_ns = round(self.sim.config.time_step * 1e9)
         self.joint_names = list(self.sim.robot.joint_names)
@@ -98,8 +100,13 @@ class SimBridgeNode(Node):
                                           throttle_duration_sec=1.0)
                 return
             stamp_ns = cv.ns_from_stamp(msg.header.stamp)
-            if self.clock_mode == "lockstep" and stamp_ns != self.sim.steps * self.dt_ns:
-                self._late_commands += 1  # stamped for another step: not for this one
+            now_ns = self.sim.steps * self.dt_ns
+            if self.clock_mode == "lockstep":
+                stale = stamp_ns != now_ns  # stamped for another step: not for this one
+            else:  # realtime: the latest command counts, unless its stamp is far from now (pre-reset)
+                stale = abs(stamp_ns - now_ns) * 1e-9 > self.watchdog.timeout
+            if stale:
+                self._late_commands += 1
                 return
             self.watchdog.accept(valid, self.sim.time)
             self._pending_stamp_ns = stamp_ns
@@ -154,10 +161,20 @@ class SimBridgeNode(Node):
                         continue
                     if self.clock_mode == "lockstep":
                         got = self._lock.wait_for(self._lockstep_ready, timeout=self.lockstep_timeout)
-                        if self._reset_requested or not self._running:
+                        if self._reset_requested or self._paused or not self._running:
                             continue
                         if not got:
                             self._lockstep_timeouts += 1
+                            if self.watchdog.accepted_since_reset == 0:
+                                # Nobody has commanded this run yet (start-up, discovery): hold the
+                                # sim and offer the sensors again, so runs are reproducible.
+                                republish = self.sim.sensors()
+                                self._lock.release()
+                                try:
+                                    self._publish(republish)
+                                finally:
+                                    self._lock.acquire()
+                                continue
                     command = self.watchdog.active(self.sim.time)
                     readings = self.sim.step(command)
                 self._publish(readings)
@@ -173,20 +190,22 @@ class SimBridgeNode(Node):
         except Exception as exc:  # a dead sim loop must be loud, never silent
             if not rclpy.ok(context=self.context):
                 return  # shutting down (Ctrl-C): publishers are gone, nothing is lost
-            self.get_logger().fatal(f"simulation loop failed, stopping the node: {exc!r}")
+            self.get_logger().fatal(f"simulation loop failed, stopping the node: {exc!r}\n"
+                                    f"{traceback.format_exc()}")
             self.failure = exc
             self.context.try_shutdown()  # ends spin() in main(), which exits non-zero
 
     def _lockstep_ready(self) -> bool:
         """Lockstep wait condition (lock held): this step's command arrived, or stop/reset."""
         current_ns = self.sim.steps * self.dt_ns
-        return self._pending_stamp_ns == current_ns or self._reset_requested or not self._running
+        return (self._pending_stamp_ns == current_ns or self._reset_requested or self._paused
+                or not self._running)
 
     def _do_reset(self) -> None:
         world = coerce_parameter("world", self.get_parameter("world").value, "")
         seed = coerce_parameter("seed", self.get_parameter("seed").value, 0)
         readings = self.sim.reset(world=world, seed=seed)
-        self.watchdog = CommandWatchdog(self.watchdog.timeout)
+        self.watchdog.clear_command()
         self._pending_stamp_ns = -1
         self._reset_requested = False
         self.get_logger().info(f"simulation reset: world={world} seed={seed}")
@@ -235,7 +254,10 @@ class SimBridgeNode(Node):
             self._running = False
             self._lock.notify_all()
         self._thread.join(timeout=2.0)
-        self.sim.close()
+        if self._thread.is_alive():  # never pull PyBullet from under a running step
+            self.get_logger().error("simulation thread did not stop within 2 s; leaving PyBullet open")
+        else:
+            self.sim.close()
 
 
 def _sim_defaults(config: SimConfig) -> dict:

@@ -59,7 +59,7 @@ class SimConfig:
     step_height: float = 0.08  # [m]
     step_distance: float = 1.0  # [m]
     rough_amplitude: float = 0.04  # [m]
-    slope_angle: float = 0.1  # [rad]
+    slope_angle: float = 0.1  # [rad], in (0, 0.5]: uphill along +x
     settle_time: float = 1.0  # [s]
     noise: SensorNoise = field(default_factory=SensorNoise)
 
@@ -76,11 +76,16 @@ class SimConfig:
         require_range("step_height", self.step_height, 0.0, 0.3, low_open=True)
         require_range("step_distance", self.step_distance, 0.5, 50.0)
         require_range("rough_amplitude", self.rough_amplitude, 0.0, 0.2, low_open=True)
-        require_range("slope_angle", self.slope_angle, -0.5, 0.5)
+        require_range("slope_angle", self.slope_angle, 0.0, 0.5, low_open=True)  # uphill ramp
         require_range("settle_time", self.settle_time, 0.0, 10.0)
         for f in dataclasses.fields(self.noise):
+            value = getattr(self.noise, f.name)
             high = 1.0 if f.name.endswith("_latency") else 10.0
-            require_range(f.name, getattr(self.noise, f.name), 0.0, high)
+            require_range(f.name, value, 0.0, high)
+            steps = value / self.time_step
+            if f.name.endswith("_latency") and abs(steps - round(steps)) > 1e-6:
+                raise ConfigError(
+                    f"{f.name} must be a multiple of time_step ({self.time_step} s), got {value}")
         return self
 
     @classmethod
@@ -139,9 +144,13 @@ class A1Sim:
         mode = pybullet.GUI if self.config.gui else pybullet.DIRECT
         self._p = bullet_client.BulletClient(connection_mode=mode)
         self._p.setAdditionalSearchPath(pybullet_data.getDataPath())
-        self.time = 0.0
         self.steps = 0
         self.reset()
+
+    @property
+    def time(self) -> float:
+        """Time since reset [s], from the integer step count (no accumulated rounding)."""
+        return self.steps * self.config.time_step
 
     # --- construction ---------------------------------------------------------------------
     def reset(self, world: str | None = None, seed: int | None = None) -> SensorReadings:
@@ -176,7 +185,6 @@ class A1Sim:
         hold = JointCommand.hold(self.robot)
         for _ in range(round(cfg.settle_time / cfg.time_step)):
             self._physics_step(hold)
-        self.time = 0.0
         self.steps = 0
         self._prev_velocity = np.array(p.getBaseVelocity(self._body)[0])
         noise = cfg.noise
@@ -206,7 +214,6 @@ class A1Sim:
         The command is validated first (CommandError names a bad field); nothing invalid is applied.
         """
         accel_world = self._physics_step(command.validated())
-        self.time += self.config.time_step
         self.steps += 1
         self._history.append(self._measure(accel_world))
         return self.sensors()
