@@ -71,6 +71,19 @@ def load_hand_tuned_gaits(path=None) -> dict[str, GaitParams]:
     return gaits
 
 
+# Speed schedule of the hand-tuned gaits [m/s]: (upper speed, gait name), first match wins.
+SPEED_SCHEDULE = ((0.8, "walk"), (1.3, "slow_trot"), (2.0, "rapid_trot"), (float("inf"), "fly_trot"))
+
+
+def gait_for_speed(speed: float, gaits: dict[str, GaitParams],
+                   schedule: tuple[tuple[float, str], ...] = SPEED_SCHEDULE) -> GaitParams:
+    """The hand-tuned gait for a forward speed: walk below 0.8 m/s, trots to 2.0, fly trot above."""
+    for upper, name in schedule:
+        if abs(speed) < upper:
+            return gaits[name]
+    return gaits[schedule[-1][1]]
+
+
 class PhaseIntegrator:
     """Advances the leg phases at the control rate and turns them into a contact schedule."""
 

@@ -1,0 +1,192 @@
+"""The 500 Hz locomotion controller: phase integrator + convex MPC stance + Raibert swing control.
+
+Library core, no ROS. Inputs are what a robot gives (joint states, IMU orientation and gyro, foot
+contacts) plus the base linear velocity through one argument, so ground truth or the Kalman
+estimate can feed it unchanged. Output is a JointCommand for the motors.
+
+Frames: world z up; base frame = trunk COM frame; the MPC works in the yaw-aligned frame (world
+axes rotated by the current yaw, see mpc.py). Quaternions (x, y, z, w).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from a1_common.command import JointCommand
+from a1_common.kinematics import foot_positions, inverse_kinematics, leg_jacobians
+from a1_common.robot import NUM_LEGS, A1Constants, a1
+
+from convex_mpc_node.gait import GaitParams, LegState, PhaseIntegrator
+from convex_mpc_node.mpc import ConvexMpc, MpcCommand, MpcConfig, MpcSolution, MpcState
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    control_period: float = 0.002  # [s]
+    body_height: float = 0.26  # desired COM height [m]
+    swing_apex_height: float = 0.10  # mid-swing foot height above the landing height [m]
+    # Raibert landing offset = v T_stance / 2 + gain (v - v_cmd), clipped per axis [m].
+    raibert_feedback_gain: float = 0.03  # [s]
+    raibert_clip: tuple[float, float] = (0.15, 0.10)
+    # Whole-robot COM relative to the trunk COM (base frame) [m], measured on the pybullet_data A1:
+    # the MPC's lever arms are taken from the true COM.
+    com_offset: tuple[float, float, float] = (-0.0186, -0.0014, -0.0196)
+    # Drift correction: the integrated command-minus-velocity error is clamped to this [m], [rad].
+    max_position_error: float = 0.05
+    max_yaw_error: float = 0.1
+    mpc: MpcConfig = field(default_factory=MpcConfig)
+
+
+@dataclass
+class Observation:
+    """What the controller reads each step."""
+
+    joint_position: np.ndarray  # (12,) [rad]
+    joint_velocity: np.ndarray  # (12,) [rad/s]
+    orientation: np.ndarray  # (4,) base orientation (x, y, z, w)
+    angular_velocity: np.ndarray  # (3,) base frame [rad/s] (gyro)
+    foot_contact: np.ndarray  # (4,) bool
+    base_velocity: np.ndarray  # (3,) world frame [m/s], ground truth or estimate
+
+
+@dataclass
+class VelocityCommand:
+    """Desired base velocity in the yaw-aligned frame (forward, left) [m/s] and yaw rate [rad/s]."""
+
+    vx: float = 0.0
+    vy: float = 0.0
+    yaw_rate: float = 0.0
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    x, y, z, w = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def swing_curve(p0: np.ndarray, p_air: np.ndarray, p_land: np.ndarray, s: float) -> np.ndarray:
+    """Quadratic through lift-off (s=0), mid-air (s=0.5) and landing (s=1) points (paper app. A)."""
+    return 2 * (s - 0.5) * (s - 1) * p0 - 4 * s * (s - 1) * p_air + 2 * s * (s - 0.5) * p_land
+
+
+class LocomotionController:
+    """Turns a velocity command and the robot's state into joint commands, every 2 ms."""
+
+    def __init__(self, gait: GaitParams, config: ControllerConfig | None = None,
+                 robot: A1Constants | None = None) -> None:
+        self.robot = robot or a1()
+        self.config = config or ControllerConfig()
+        self.gait = PhaseIntegrator(gait)
+        self.mpc = ConvexMpc(self.config.mpc)
+        neutral = self.robot.hip_offsets.copy()
+        sides = np.array([self.robot.leg_sign(i) for i in range(NUM_LEGS)])
+        neutral[:, 1] += sides * self.robot.hip_link_length  # foot under the hip, zero abduction
+        self._neutral_xy = neutral[:, :2]
+        self.mpc_fallbacks = 0
+        self.last_solution: MpcSolution | None = None
+        self.reset()
+
+    def reset(self) -> None:
+        self.gait.reset()
+        self._position_error = np.zeros(2)  # yaw-aligned frame [m]
+        self._yaw_target: float | None = None
+        self._was_swing = np.zeros(NUM_LEGS, dtype=bool)
+        self._liftoff = foot_positions(self.robot, self.robot.nominal_joint_angles)
+
+    def set_gait(self, params: GaitParams) -> None:
+        self.gait.set_params(params)
+
+    def step(self, obs: Observation, command: VelocityCommand) -> JointCommand:
+        """One control step: compute the joint command for ``obs``, then advance the phases by dt."""
+        cfg = self.config
+        robot = self.robot
+        q = np.asarray(obs.joint_position, dtype=float)
+        rot = quat_to_matrix(np.asarray(obs.orientation, dtype=float))  # base -> world
+        yaw = np.arctan2(rot[1, 0], rot[0, 0])
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        rot_yaw = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+        rot_rp = rot_yaw.T @ rot  # base -> yaw-aligned frame
+        roll = np.arctan2(rot_rp[2, 1], rot_rp[2, 2])
+        pitch = -np.arcsin(np.clip(rot_rp[2, 0], -1.0, 1.0))
+
+        feet_base = foot_positions(robot, q)
+        feet_yaw = (rot_rp @ (feet_base - np.asarray(cfg.com_offset)).T).T
+        contact = np.asarray(obs.foot_contact, dtype=bool)
+        states = self.gait.leg_states(contact)
+        stance = states != LegState.SWING
+        touching = stance & contact
+        # COM height above the ground under the feet in contact (toe centre + toe radius).
+        ground = -feet_yaw[touching, 2] + robot.foot_radius
+        height = float(np.mean(ground)) if touching.any() else cfg.body_height
+        v_yaw = rot_yaw.T @ np.asarray(obs.base_velocity, dtype=float)
+        w_yaw = rot_rp @ np.asarray(obs.angular_velocity, dtype=float)
+
+        dt = cfg.control_period
+        v_cmd = np.array([command.vx, command.vy])
+        self._position_error = np.clip(self._position_error + (v_cmd - v_yaw[:2]) * dt,
+                                       -cfg.max_position_error, cfg.max_position_error)
+        if self._yaw_target is None:
+            self._yaw_target = yaw
+        yaw_error = (self._yaw_target - yaw + np.pi) % (2 * np.pi) - np.pi
+        yaw_error = float(np.clip(yaw_error, -cfg.max_yaw_error, cfg.max_yaw_error))
+        self._yaw_target = yaw + yaw_error + command.yaw_rate * dt
+
+        mpc_cfg = cfg.mpc
+        plan = self.gait.contact_schedule(mpc_cfg.horizon, mpc_cfg.step, contact)
+        solution = self.mpc.solve(
+            MpcState(roll, pitch, height, w_yaw, v_yaw, feet_yaw),
+            MpcCommand(v_cmd, command.yaw_rate, cfg.body_height, self._position_error, yaw_error), plan)
+        self.last_solution = solution
+        self.mpc_fallbacks += solution.fallback
+
+        out = JointCommand()
+        jac = leg_jacobians(robot, q)
+        # Stance: the foot pushes on the ground with -f; torques = J^T (that force in the base frame).
+        foot_force_base = (rot_rp.T @ (-solution.forces).T).T
+        for leg in np.flatnonzero(stance):
+            sl = slice(3 * leg, 3 * leg + 3)
+            out.torque[sl] = jac[leg].T @ foot_force_base[leg]
+
+        swing = ~stance
+        desired_swing = ~self.gait.desired_contact
+        starting = desired_swing & ~self._was_swing
+        self._liftoff[starting] = feet_base[starting]
+        self._was_swing = desired_swing
+        if swing.any():
+            targets = feet_base.copy()
+            v_base = rot.T @ np.asarray(obs.base_velocity, dtype=float)
+            progress = self.gait.normalised_phase()
+            t_stance = self.gait.stance_duration
+            for leg in np.flatnonzero(swing):
+                targets[leg] = self._swing_target(leg, v_base, obs.angular_velocity[2], command, t_stance,
+                                                  progress[leg])
+            q_swing = inverse_kinematics(robot, targets)
+            for leg in np.flatnonzero(swing):
+                sl = slice(3 * leg, 3 * leg + 3)
+                out.position[sl] = q_swing[sl]
+                out.kp[sl] = robot.joint_kp[sl]
+                out.kd[sl] = robot.joint_kd[sl]
+        out.torque = np.clip(out.torque, -robot.motor_torque_limit, robot.motor_torque_limit)
+        self.gait.step(cfg.control_period)
+        if not all(np.all(np.isfinite(a)) for a in (out.position, out.torque)):
+            self.mpc_fallbacks += 1
+            return JointCommand.hold(robot, q if np.all(np.isfinite(q)) else None)
+        return out
+
+    def _swing_target(self, leg: int, v_base: np.ndarray, yaw_rate: float, command: VelocityCommand,
+                      t_stance: float, progress: float) -> np.ndarray:
+        """Foot target (base frame) along the lift-off -> mid-air -> Raibert landing curve."""
+        cfg = self.config
+        ref = self._neutral_xy[leg]
+        hip_velocity = v_base[:2] + yaw_rate * np.array([-ref[1], ref[0]])
+        desired = np.array([command.vx, command.vy]) + command.yaw_rate * np.array([-ref[1], ref[0]])
+        offset = hip_velocity * t_stance / 2 + cfg.raibert_feedback_gain * (hip_velocity - desired)
+        offset = np.clip(offset, -np.asarray(cfg.raibert_clip), np.asarray(cfg.raibert_clip))
+        ground_z = -cfg.body_height + self.config.com_offset[2] + self.robot.foot_radius  # toe centre
+        land = np.array([ref[0] + offset[0], ref[1] + offset[1], ground_z])
+        air = np.array([ref[0], ref[1], ground_z + cfg.swing_apex_height])
+        return swing_curve(self._liftoff[leg], air, land, progress)

@@ -1,0 +1,308 @@
+"""Convex MPC for stance control (paper appendix A; Di Carlo et al. 2018), solved with OSQP.
+
+Model: the centroidal dynamics of the paper, a single rigid body of mass m and body inertia I_b with
+massless legs, small roll/pitch. State (13) = [roll, pitch, yaw, p (3), omega (3), v (3), g], where
+the constant last entry carries gravity. Everything is expressed in the *yaw-aligned frame*: the
+world frame rotated by the robot's current yaw, origin at the COM. There the Euler-rate map
+R_z(yaw)^T of the paper is the identity at the first step, and foot positions r_i are
+R_yaw^T (R p_i) with p_i the base-frame foot positions.
+
+  d/dt [Theta, p, omega, v] = [omega, v, I_w^-1 sum r_i x f_i, sum f_i / m - g e_z]
+
+A is nilpotent (A^3 = 0), so the exact zero-order-hold discretisation over dt is closed form:
+  A_d = I + A dt + A^2 dt^2 / 2,   B_d = (I dt + A dt^2 / 2 + A^2 dt^3 / 6) B.
+
+The QP is the sparse (simultaneous) formulation: variables z = [x_1 .. x_H, u_0 .. u_{H-1}],
+equality rows for the dynamics, five rows per leg and step for the friction pyramid and the
+normal-force bounds (swing legs get f = 0). Its sparsity pattern never changes, so each control
+step only updates values (q, bounds, the B_d entries of the constraint matrix) in the persistent
+OSQP workspace: no re-setup.
+
+Units: N, m, s, rad. Forces returned are ground reaction forces on the robot, yaw-aligned frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+from a1_common.config import require_range
+from a1_common.robot import NUM_LEGS
+
+NX = 13  # state size (with the gravity entry)
+NU = 3 * NUM_LEGS  # forces of the four feet
+ROWS_PER_FOOT = 5
+
+
+@dataclass(frozen=True)
+class MpcConfig:
+    horizon: int = 10  # steps
+    step: float = 0.025  # [s] between horizon steps
+    # Diagonal state weights [roll, pitch, yaw, x, y, z, wx, wy, wz, vx, vy, vz].
+    # Reference values except: x, y, yaw tracked (the reference's zeros let a standing robot drift)
+    # and v_x, v_y at 1 (its "alternative" weights), for tighter speed tracking.
+    state_weights: tuple[float, ...] = (1.0, 1.0, 0.5, 2.0, 2.0, 10.0, 0.0, 0.0, 0.1, 1.0, 1.0, 0.0)
+    # alpha: cost alpha |u|^2. The reference's 1e-5 makes the finite-horizon optimum trade height
+    # for smaller forces late in the horizon, so the first force overshoots m g by about 20% when
+    # standing still; 1e-6 keeps it within 5% (tests/test_mpc.py).
+    force_weight: float = 1e-6
+    mass: float = 12.458  # [kg] the simulated robot's mass (pybullet_data A1)
+    # Composite inertia of the pybullet_data A1 about its COM at the nominal stance, measured from
+    # the simulator's link masses and inertias (the reference used 0.17, 0.57, 0.64 for a heavier URDF).
+    inertia: tuple[float, float, float] = (0.13, 0.35, 0.39)  # body-frame diagonal [kg m^2]
+    friction_coefficient: float = 0.6  # mu of the friction pyramid
+    min_normal_force: float = 0.0  # [N] for stance feet; 0: a planned stance foot may unload
+    max_normal_force: float = 250.0  # [N]
+    gravity: float = 9.81  # [m/s^2]
+    eps: float = 1e-4  # OSQP absolute and relative tolerance
+    max_iter: int = 200  # OSQP iterations per solve (warm-started at 500 Hz)
+    max_violation: float = 1.0  # [N] largest constraint violation accepted from an unfinished solve
+
+    def validated(self) -> MpcConfig:
+        if not isinstance(self.horizon, int) or not 1 <= self.horizon <= 50:
+            raise ValueError(f"horizon must be an integer in [1, 50], got {self.horizon!r}")
+        require_range("step", self.step, 0.0, 0.2, low_open=True)
+        if len(self.state_weights) != 12 or min(self.state_weights) < 0:
+            raise ValueError(f"state_weights must be 12 non-negative numbers, got {self.state_weights}")
+        require_range("force_weight", self.force_weight, 0.0, 1.0, low_open=True)
+        require_range("mass", self.mass, 1.0, 100.0)
+        if len(self.inertia) != 3 or min(self.inertia) <= 0:
+            raise ValueError(f"inertia must be 3 positive numbers [kg m^2], got {self.inertia}")
+        require_range("friction_coefficient", self.friction_coefficient, 0.0, 2.0, low_open=True)
+        require_range("max_normal_force", self.max_normal_force, 1.0, 5000.0)
+        require_range("min_normal_force", self.min_normal_force, 0.0, self.max_normal_force)
+        return self
+
+
+@dataclass
+class MpcState:
+    """Current state in the yaw-aligned frame (yaw itself is 0 there by construction)."""
+
+    roll: float
+    pitch: float
+    height: float  # COM height above the ground [m]
+    angular_velocity: np.ndarray  # (3,) [rad/s], yaw-aligned frame
+    linear_velocity: np.ndarray  # (3,) [m/s], yaw-aligned frame
+    foot_positions: np.ndarray  # (4, 3) feet relative to the COM, yaw-aligned frame [m]
+
+
+@dataclass
+class MpcCommand:
+    velocity: np.ndarray  # (2,) desired v_x, v_y in the yaw-aligned frame [m/s]
+    yaw_rate: float  # [rad/s]
+    height: float  # desired COM height [m]
+    # Where the commanded motion says the robot should be now, relative to where it is (yaw-aligned
+    # frame): integrated command minus integrated velocity. Tracked with the x, y, yaw weights.
+    position_error: np.ndarray = field(default_factory=lambda: np.zeros(2))  # [m]
+    yaw_error: float = 0.0  # [rad]
+
+
+@dataclass
+class MpcSolution:
+    forces: np.ndarray  # (4, 3) ground reaction forces on the robot at the first step [N]
+    status: str
+    solved: bool
+    iterations: int
+    solve_time: float  # [s] as reported by OSQP
+    fallback: bool = False
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def rotation_rp(roll: float, pitch: float) -> np.ndarray:
+    """R_y(pitch) R_x(roll): body orientation in the yaw-aligned frame."""
+    cr, sr, cp, spt = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    return np.array([[cp, spt * sr, spt * cr], [0.0, cr, -sr], [-spt, cp * sr, cp * cr]])
+
+
+def continuous_dynamics(config: MpcConfig, state: MpcState) -> tuple[np.ndarray, np.ndarray]:
+    """A (13x13) and B (13x12) of the centroidal model at ``state``."""
+    a = np.zeros((NX, NX))
+    a[0:3, 6:9] = np.eye(3)  # Euler rates = omega (yaw-aligned frame, small roll/pitch)
+    a[3:6, 9:12] = np.eye(3)
+    a[11, 12] = -1.0  # v_z' = -g (state 12 holds g)
+    rot = rotation_rp(state.roll, state.pitch)
+    inertia_world_inv = rot @ np.diag(1.0 / np.asarray(config.inertia)) @ rot.T
+    b = np.zeros((NX, NU))
+    for leg in range(NUM_LEGS):
+        b[6:9, 3 * leg:3 * leg + 3] = inertia_world_inv @ skew(state.foot_positions[leg])
+        b[9:12, 3 * leg:3 * leg + 3] = np.eye(3) / config.mass
+    return a, b
+
+
+def discretize(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order hold for nilpotent A (A^3 = 0)."""
+    a2 = a @ a
+    eye = np.eye(a.shape[0])
+    return eye + a * dt + a2 * dt**2 / 2, (eye * dt + a * dt**2 / 2 + a2 * dt**3 / 6) @ b
+
+
+def reference_trajectory(config: MpcConfig, state: MpcState, command: MpcCommand) -> np.ndarray:
+    """Desired states x_1..x_H (H, 13): level body, commanded velocities, integrated position."""
+    t = config.step * np.arange(1, config.horizon + 1)
+    ref = np.zeros((config.horizon, NX))
+    ref[:, 2] = command.yaw_error + command.yaw_rate * t
+    ref[:, 3] = command.position_error[0] + command.velocity[0] * t
+    ref[:, 4] = command.position_error[1] + command.velocity[1] * t
+    ref[:, 5] = command.height
+    ref[:, 8] = command.yaw_rate
+    ref[:, 9] = command.velocity[0]
+    ref[:, 10] = command.velocity[1]
+    ref[:, 12] = config.gravity
+    return ref
+
+
+def initial_state(config: MpcConfig, state: MpcState) -> np.ndarray:
+    x0 = np.zeros(NX)
+    x0[0], x0[1] = state.roll, state.pitch
+    x0[5] = state.height
+    x0[6:9] = state.angular_velocity
+    x0[9:12] = state.linear_velocity
+    x0[12] = config.gravity
+    return x0
+
+
+def force_constraint_block(mu: float) -> np.ndarray:
+    """Rows per foot on (f_x, f_y, f_z): f_x +- mu f_z, f_y +- mu f_z (pyramid), f_z."""
+    return np.array([[1.0, 0.0, mu], [-1.0, 0.0, mu], [0.0, 1.0, mu], [0.0, -1.0, mu], [0.0, 0.0, 1.0]])
+
+
+class ConvexMpc:
+    """Persistent OSQP problem; ``solve`` updates values only and warm-starts from the last solve."""
+
+    def __init__(self, config: MpcConfig | None = None) -> None:
+        self.config = cfg = (config or MpcConfig()).validated()
+        h = cfg.horizon
+        self._n_x = h * NX
+        self.n_var = h * (NX + NU)
+        n_dyn = h * NX
+        n_force = h * NUM_LEGS * ROWS_PER_FOOT
+        self.n_con = n_dyn + n_force
+        # Cost: sum_k |x_k - ref_k|_Q^2 + alpha |u_k|^2  ->  1/2 z' P z + q' z
+        q_diag = np.append(np.asarray(cfg.state_weights, dtype=float), 0.0)
+        self._q_diag = np.tile(q_diag, h)
+        p_diag = np.concatenate([2 * self._q_diag, np.full(h * NU, 2 * cfg.force_weight)])
+        p_mat = sp.diags(p_diag, format="csc")
+        # Constraint matrix pattern. B_d blocks: rows 0..11 of each dynamics block x all 12 inputs.
+        rows, cols = [], []
+        for k in range(h):
+            r0, xk = k * NX, k * NX
+            rows += list(range(r0, r0 + NX))  # +I on x_{k+1}
+            cols += list(range(xk, xk + NX))
+            if k > 0:  # -A_d on x_k: full 13x13 pattern, A_d values fixed
+                rr, cc = np.meshgrid(np.arange(NX), np.arange(NX), indexing="ij")
+                rows += list((r0 + rr).ravel())
+                cols += list(((k - 1) * NX + cc).ravel())
+            rr, cc = np.meshgrid(np.arange(NX - 1), np.arange(NU), indexing="ij")
+            rows += list((r0 + rr).ravel())
+            cols += list((self._n_x + k * NU + cc).ravel())
+        block = force_constraint_block(cfg.friction_coefficient)
+        for k in range(h):
+            for leg in range(NUM_LEGS):
+                r0 = n_dyn + (k * NUM_LEGS + leg) * ROWS_PER_FOOT
+                c0 = self._n_x + k * NU + 3 * leg
+                nz_r, nz_c = np.nonzero(block)
+                rows += list(r0 + nz_r)
+                cols += list(c0 + nz_c)
+        rows = np.asarray(rows)
+        cols = np.asarray(cols)
+        ones = np.ones(len(rows))
+        pattern = sp.csc_matrix((ones, (rows, cols)), shape=(self.n_con, self.n_var))
+        pattern.sort_indices()
+        # Map (row, col) -> position in the CSC data array, to write values without re-setup.
+        self._a_pattern = pattern
+        self._index = {}
+        for c in range(self.n_var):
+            for pos in range(pattern.indptr[c], pattern.indptr[c + 1]):
+                self._index[(pattern.indices[pos], c)] = pos
+        self._a_values = np.zeros(pattern.nnz)
+        self._b_positions = np.array([[[self._index[(k * NX + r, self._n_x + k * NU + c)]
+                                        for c in range(NU)] for r in range(NX - 1)] for k in range(h)])
+        eye_pos = [self._index[(k * NX + i, k * NX + i)] for k in range(h) for i in range(NX)]
+        self._a_values[eye_pos] = 1.0
+        self._a_d_positions = np.array([[[self._index[(k * NX + r, (k - 1) * NX + c)] for c in range(NX)]
+                                         for r in range(NX)] for k in range(1, h)])
+        for k in range(h):
+            for leg in range(NUM_LEGS):
+                r0 = n_dyn + (k * NUM_LEGS + leg) * ROWS_PER_FOOT
+                c0 = self._n_x + k * NU + 3 * leg
+                for (r, c), v in np.ndenumerate(block):
+                    if v != 0:
+                        self._a_values[self._index[(r0 + r, c0 + c)]] = v
+        a_unit, _ = continuous_dynamics(cfg, MpcState(0, 0, 0.3, np.zeros(3), np.zeros(3), np.zeros((4, 3))))
+        self.a_d, _ = discretize(a_unit, np.zeros((NX, NU)), cfg.step)
+        self._a_values[self._a_d_positions] = -self.a_d[None, :, :]
+        self._lower = np.zeros(self.n_con)
+        self._upper = np.zeros(self.n_con)
+        self._solver = osqp.OSQP()
+        self._solver.setup(P=sp.triu(p_mat, format="csc"), q=np.zeros(self.n_var),
+                           A=sp.csc_matrix((self._a_values.copy(), pattern.indices, pattern.indptr),
+                                           shape=pattern.shape),
+                           l=self._lower, u=self._upper, verbose=False, warm_starting=True, polishing=False,
+                           eps_abs=cfg.eps, eps_rel=cfg.eps, max_iter=cfg.max_iter,
+                           adaptive_rho_interval=25, check_termination=5)
+        self._last_forces: np.ndarray | None = None
+
+    def build(self, state: MpcState, command: MpcCommand, contact_plan: np.ndarray) -> dict:
+        """QP data (q, l, u, A values) for this step; exposed for tests and benchmarks."""
+        cfg = self.config
+        h = cfg.horizon
+        plan = np.asarray(contact_plan, dtype=bool)
+        if plan.shape != (h, NUM_LEGS):
+            raise ValueError(f"contact_plan must have shape ({h}, {NUM_LEGS}), got {plan.shape}")
+        a, b = continuous_dynamics(cfg, state)
+        a_d, b_d = discretize(a, b, cfg.step)
+        values = self._a_values
+        values[self._b_positions] = -b_d[None, : NX - 1, :]
+        x0 = initial_state(cfg, state)
+        ref = reference_trajectory(cfg, state, command)
+        q = np.concatenate([-2.0 * self._q_diag * ref.ravel(), np.zeros(h * NU)])
+        n_dyn = h * NX
+        lower, upper = self._lower, self._upper
+        lower[:NX] = upper[:NX] = a_d @ x0  # x_1 - B_d u_0 = A_d x_0
+        lower[NX:n_dyn] = upper[NX:n_dyn] = 0.0
+        force_rows = np.zeros((h, NUM_LEGS, ROWS_PER_FOOT))
+        lo = force_rows.copy()
+        hi = force_rows.copy()
+        contact = plan[:, :, None]
+        big = np.inf
+        lo[:, :, :4] = 0.0
+        hi[:, :, :4] = np.where(contact, big, 0.0)
+        lo[:, :, 4] = np.where(plan, cfg.min_normal_force, 0.0)
+        hi[:, :, 4] = np.where(plan, cfg.max_normal_force, 0.0)
+        lower[n_dyn:] = lo.ravel()
+        upper[n_dyn:] = hi.ravel()
+        return {"q": q, "l": lower, "u": upper, "Ax": values, "a_d": a_d, "b_d": b_d, "x0": x0, "ref": ref}
+
+    def solve(self, state: MpcState, command: MpcCommand, contact_plan: np.ndarray) -> MpcSolution:
+        """Forces for the first horizon step. On solver failure: a static force split (fallback)."""
+        data = self.build(state, command, contact_plan)
+        self._solver.update(q=data["q"], l=data["l"], u=data["u"], Ax=data["Ax"])
+        result = self._solver.solve(raise_error=False)  # failures are handled below, not raised
+        info = result.info
+        status = info.status
+        x = result.x
+        # An iterate stopped by max_iter is still used if its constraint violation is small (in N):
+        # at 500 Hz the warm-started iterates are close, and a static split is a worse fallback.
+        usable = status in ("solved", "solved inaccurate") or (
+            status == "maximum iterations reached" and info.prim_res < self.config.max_violation)
+        solved = usable and x is not None and bool(np.all(np.isfinite(x)))
+        if solved:
+            forces = np.asarray(x[self._n_x:self._n_x + NU]).reshape(NUM_LEGS, 3).copy()
+            forces[~np.asarray(contact_plan, dtype=bool)[0]] = 0.0
+            return MpcSolution(forces, status, True, info.iter, info.solve_time)
+        return MpcSolution(self.static_forces(np.asarray(contact_plan)[0]), status, False, info.iter,
+                           info.solve_time, fallback=True)
+
+
+    def static_forces(self, contact: np.ndarray) -> np.ndarray:
+        """Fallback: the weight shared equally by the feet in contact, straight up."""
+        forces = np.zeros((NUM_LEGS, 3))
+        n = int(np.count_nonzero(contact))
+        if n:
+            forces[np.asarray(contact, dtype=bool), 2] = self.config.mass * self.config.gravity / n
+        return forces

@@ -1,0 +1,67 @@
+"""The controller walks the simulated A1: paper gaits at their speeds, acceleration, turning, standing.
+
+In-process closed loop (sim core + controller, ground-truth base velocity). A fall is a tilt above
+30 degrees or the base below 0.18 m.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from convex_mpc_node.controller import VelocityCommand, swing_curve
+from convex_mpc_node.gait import gait_for_speed, load_hand_tuned_gaits
+from gait_policy_node.rollout import ramp_profile, run_closed_loop
+
+GAITS = load_hand_tuned_gaits()
+
+
+def fixed(name: str):
+    return lambda t, command: GAITS[name]
+
+
+def test_swing_curve_passes_through_its_three_points():
+    p0, air, land = np.array([-0.05, 0.1, -0.28]), np.array([0.0, 0.12, -0.18]), np.array([0.07, 0.13, -0.28])
+    np.testing.assert_allclose(swing_curve(p0, air, land, 0.0), p0)
+    np.testing.assert_allclose(swing_curve(p0, air, land, 0.5), air)
+    np.testing.assert_allclose(swing_curve(p0, air, land, 1.0), land)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("gait", "speed"),
+    [("walk", 0.5), ("slow_trot", 1.0), ("rapid_trot", 1.5), ("rapid_trot", 2.0), ("fly_trot", 2.5)],
+)
+def test_gait_tracks_speed_for_10_s(gait, speed):
+    traj = run_closed_loop(fixed(gait), ramp_profile(speed), 10.0)
+    assert not traj.fell, f"{gait} at {speed} m/s fell at t={traj.fall_time}"
+    vx = traj.mean_velocity(5.0)[0]
+    assert vx == pytest.approx(speed, rel=0.10), f"mean v_x over the last 5 s: {vx:.3f} m/s"
+
+
+@pytest.mark.slow
+def test_paper_acceleration_profile_with_speed_scheduled_gaits():
+    traj = run_closed_loop(lambda t, c: gait_for_speed(c.vx, GAITS), ramp_profile(2.5, 1.0), 20.0)
+    assert not traj.fell, f"fell at t={traj.fall_time}"
+    assert traj.mean_velocity(10.0)[0] == pytest.approx(2.5, rel=0.10)
+
+
+@pytest.mark.slow
+def test_trot_follows_yaw_rate_command():
+    traj = run_closed_loop(fixed("slow_trot"), lambda t: VelocityCommand(yaw_rate=0.5), 10.0)
+    assert not traj.fell
+    assert np.mean(traj.yaw_rate[-2500:]) == pytest.approx(0.5, rel=0.2)
+
+
+@pytest.mark.slow
+def test_trot_follows_lateral_command():
+    traj = run_closed_loop(fixed("slow_trot"), lambda t: VelocityCommand(vy=0.3), 10.0)
+    assert not traj.fell
+    assert traj.mean_velocity(5.0)[1] == pytest.approx(0.3, rel=0.2)
+
+
+@pytest.mark.slow
+def test_standing_still_does_not_drift():
+    traj = run_closed_loop(fixed("slow_trot"), lambda t: VelocityCommand(), 10.0)
+    assert not traj.fell
+    drift = np.linalg.norm(traj.position[-1][:2] - traj.position[0][:2])
+    assert drift < 0.05, f"drifted {drift:.3f} m in 10 s"
