@@ -52,6 +52,8 @@ class Trajectory:
     mpc_fallbacks: int = 0
     controller_time: list[float] = field(default_factory=list)  # [s] wall per controller step
     physics_time: list[float] = field(default_factory=list)  # [s] wall per sim step
+    qp_build_time: list[float] = field(default_factory=list)  # [s] wall per MPC QP build
+    qp_solve_time: list[float] = field(default_factory=list)  # [s] wall per OSQP update + solve
 
     def mean_velocity(self, start: float, end: float | None = None) -> np.ndarray:
         t = np.asarray(self.time)
@@ -101,6 +103,8 @@ def run_closed_loop(schedule: GaitSchedule, profile: SpeedProfile, duration: flo
             traj.contacts.append(r.foot_contact)
             traj.controller_time.append(t1 - t0)
             traj.physics_time.append(t2 - t1)
+            traj.qp_build_time.append(controller.last_solution.build_time)
+            traj.qp_solve_time.append(controller.last_solution.solve_time)
             if tilted_or_low(truth.base_position, truth.base_orientation):
                 traj.fell, traj.fall_time = True, sim.time
                 break
