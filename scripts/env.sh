@@ -18,3 +18,5 @@ unset _gs_root _gs_nounset
 # Keep DDS discovery on this host unless the user chose otherwise (the robot's network is
 # configured explicitly when a hardware bridge runs).
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+# The controller's matrices are tiny: multithreaded BLAS only adds overhead and jitter.
+export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}"

@@ -136,7 +136,7 @@ class LocomotionController:
         self._yaw_target = yaw + yaw_error + command.yaw_rate * dt
 
         mpc_cfg = cfg.mpc
-        plan = self.gait.contact_schedule(mpc_cfg.horizon, mpc_cfg.step, contact)
+        plan = self.gait.contact_schedule(mpc_cfg.horizon, mpc_cfg.step, leg_states=states)
         solution = self.mpc.solve(
             MpcState(roll, pitch, height, w_yaw, v_yaw, feet_yaw),
             MpcCommand(v_cmd, command.yaw_rate, cfg.body_height, self._position_error, yaw_error), plan)

@@ -141,16 +141,19 @@ class PhaseIntegrator:
         states[~desired & contact & (progress > EARLY_CONTACT_SWING_FRACTION)] = LegState.EARLY_CONTACT
         return states
 
-    def contact_schedule(self, horizon: int, step: float,
-                         foot_contact: np.ndarray | None = None) -> np.ndarray:
+    def contact_schedule(self, horizon: int, step: float, foot_contact: np.ndarray | None = None,
+                         leg_states: np.ndarray | None = None) -> np.ndarray:
         """Planned contact (horizon, 4) at t = k * step, k = 0..horizon-1, at the current f.
 
-        Row 0 is replaced by the measured states when ``foot_contact`` is given: a leg in STANCE,
-        EARLY_CONTACT or LOST_CONTACT counts as in contact for the current step.
+        Row 0 is replaced by the measured states when ``foot_contact`` (or the ``leg_states``
+        already computed from it) is given: a leg in STANCE, EARLY_CONTACT or LOST_CONTACT counts
+        as in contact for the current step.
         """
         k = np.arange(horizon)[:, None]
         future = (self.phases[None, :] + TWO_PI * self.params.stepping_frequency * step * k) % TWO_PI
         plan = future >= self.swing_threshold
-        if foot_contact is not None and horizon > 0:
-            plan[0] = self.leg_states(foot_contact) != LegState.SWING
+        if leg_states is None and foot_contact is not None:
+            leg_states = self.leg_states(foot_contact)
+        if leg_states is not None and horizon > 0:
+            plan[0] = leg_states != LegState.SWING
         return plan

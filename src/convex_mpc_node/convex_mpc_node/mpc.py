@@ -54,8 +54,11 @@ class MpcConfig:
     # the simulator's link masses and inertias (the reference used 0.17, 0.57, 0.64 for a heavier URDF).
     inertia: tuple[float, float, float] = (0.13, 0.35, 0.39)  # body-frame diagonal [kg m^2]
     friction_coefficient: float = 0.6  # mu of the friction pyramid
-    min_normal_force: float = 0.0  # [N] for stance feet; 0: a planned stance foot may unload
-    max_normal_force: float = 250.0  # [N]
+    # Normal force of a stance foot [N]: at least 0.1 m g as in the reference (a planned stance
+    # foot keeps pressing), at most 250 N rather than the reference's 10 m g: about what the
+    # 33.5 N m knee can push through a 0.2 m calf, so the plan stays within the motors' reach.
+    min_normal_force: float = 12.0
+    max_normal_force: float = 250.0
     gravity: float = 9.81  # [m/s^2]
     eps: float = 1e-3  # OSQP absolute and relative tolerance (the reference's OSQP setting)
     max_iter: int = 200  # OSQP iterations per solve (warm-started at 500 Hz)
@@ -111,29 +114,31 @@ class MpcSolution:
     fallback: bool = False
 
 
-def skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def rotation_rp(roll: float, pitch: float) -> np.ndarray:
     """R_y(pitch) R_x(roll): body orientation in the yaw-aligned frame."""
     cr, sr, cp, spt = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
     return np.array([[cp, spt * sr, spt * cr], [0.0, cr, -sr], [-spt, cp * sr, cp * cr]])
 
 
+_A_CONTINUOUS = np.zeros((NX, NX))
+_A_CONTINUOUS[0:3, 6:9] = np.eye(3)  # Euler rates = omega (yaw-aligned frame, small roll/pitch)
+_A_CONTINUOUS[3:6, 9:12] = np.eye(3)
+_A_CONTINUOUS[11, 12] = -1.0  # v_z' = -g (state 12 holds g)
+
+
 def continuous_dynamics(config: MpcConfig, state: MpcState) -> tuple[np.ndarray, np.ndarray]:
-    """A (13x13) and B (13x12) of the centroidal model at ``state``."""
-    a = np.zeros((NX, NX))
-    a[0:3, 6:9] = np.eye(3)  # Euler rates = omega (yaw-aligned frame, small roll/pitch)
-    a[3:6, 9:12] = np.eye(3)
-    a[11, 12] = -1.0  # v_z' = -g (state 12 holds g)
+    """A (13x13, constant) and B (13x12) of the centroidal model at ``state``."""
     rot = rotation_rp(state.roll, state.pitch)
     inertia_world_inv = rot @ np.diag(1.0 / np.asarray(config.inertia)) @ rot.T
+    r = np.asarray(state.foot_positions, dtype=float)
+    skews = np.zeros((NUM_LEGS, 3, 3))  # [r_i]x for all legs at once
+    skews[:, 0, 1], skews[:, 0, 2] = -r[:, 2], r[:, 1]
+    skews[:, 1, 0], skews[:, 1, 2] = r[:, 2], -r[:, 0]
+    skews[:, 2, 0], skews[:, 2, 1] = -r[:, 1], r[:, 0]
     b = np.zeros((NX, NU))
-    for leg in range(NUM_LEGS):
-        b[6:9, 3 * leg:3 * leg + 3] = inertia_world_inv @ skew(state.foot_positions[leg])
-        b[9:12, 3 * leg:3 * leg + 3] = np.eye(3) / config.mass
-    return a, b
+    b[6:9] = np.einsum("ij,ljk->ilk", inertia_world_inv, skews).reshape(3, NU)
+    b[9:12] = np.tile(np.eye(3) / config.mass, NUM_LEGS)
+    return _A_CONTINUOUS.copy(), b
 
 
 def discretize(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
