@@ -153,3 +153,18 @@ def test_bad_contact_plan_shape():
     mpc = ConvexMpc()
     with pytest.raises(ValueError, match="contact_plan"):
         mpc.solve(make_state(), MpcCommand(np.zeros(2), 0.0, 0.26), np.ones((3, 4), dtype=bool))
+
+
+def test_controller_config_file_loads_and_rejects_unknown_keys(tmp_path):
+    from a1_common.config import ConfigError
+    from convex_mpc_node.controller import ControllerConfig, load_controller_config
+
+    config = load_controller_config()
+    assert config == ControllerConfig()  # the file and the library defaults agree
+    bad = tmp_path / "convex_mpc.yaml"
+    bad.write_text("convex_mpc:\n  ros__parameters:\n    mpc_horizn: 10\n")
+    with pytest.raises(ConfigError, match="mpc_horizn"):
+        load_controller_config(bad)
+    bad.write_text("convex_mpc:\n  ros__parameters:\n    mpc_friction_coefficient: -1.0\n")
+    with pytest.raises(ConfigError, match="friction_coefficient"):
+        load_controller_config(bad)

@@ -10,10 +10,12 @@ axes rotated by the current yaw, see mpc.py). Quaternions (x, y, z, w).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 from a1_common.command import JointCommand
+from a1_common.config import ConfigError, config_dir, load_node_parameters
 from a1_common.kinematics import foot_positions, inverse_kinematics, leg_jacobians
 from a1_common.robot import NUM_LEGS, A1Constants, a1
 
@@ -36,6 +38,33 @@ class ControllerConfig:
     max_position_error: float = 0.05
     max_yaw_error: float = 0.1
     mpc: MpcConfig = field(default_factory=MpcConfig)
+
+
+def load_controller_config(path=None) -> ControllerConfig:
+    """ControllerConfig from the node's parameter file (default ``config/convex_mpc.yaml``).
+
+    Keys ``mpc_<field>`` set MpcConfig fields, the others ControllerConfig fields; unknown keys
+    are errors naming the key.
+    """
+    path = path or config_dir() / "convex_mpc.yaml"
+    params = load_node_parameters(path, "convex_mpc")
+    mpc_fields = {f.name for f in dataclasses.fields(MpcConfig)}
+    top_fields = {f.name for f in dataclasses.fields(ControllerConfig)} - {"mpc"}
+    mpc_args, top_args = {}, {}
+    for key, value in params.items():
+        value = tuple(value) if isinstance(value, list) else value
+        if key.startswith("mpc_") and key[4:] in mpc_fields:
+            mpc_args[key[4:]] = value
+        elif key in top_fields:
+            top_args[key] = value
+        else:
+            allowed = sorted(top_fields | {"mpc_" + f for f in mpc_fields})
+            raise ConfigError(f"{path}: unknown controller parameter '{key}'; allowed: {allowed}")
+    try:
+        mpc = MpcConfig(**mpc_args).validated()
+    except ValueError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    return ControllerConfig(mpc=mpc, **top_args)
 
 
 @dataclass
@@ -79,7 +108,7 @@ class LocomotionController:
     def __init__(self, gait: GaitParams, config: ControllerConfig | None = None,
                  robot: A1Constants | None = None) -> None:
         self.robot = robot or a1()
-        self.config = config or ControllerConfig()
+        self.config = config or load_controller_config()
         self.gait = PhaseIntegrator(gait)
         self.mpc = ConvexMpc(self.config.mpc)
         neutral = self.robot.hip_offsets.copy()
