@@ -1,7 +1,9 @@
 """The controller walks the simulated A1: paper gaits at their speeds, acceleration, turning, standing.
 
-In-process closed loop (sim core + controller, ground-truth base velocity). A fall is a tilt above
-30 degrees or the base below 0.18 m.
+In-process closed loop: sim core + Kalman estimator + controller, the controller running on the
+estimated base velocity as on the robot. A fall is a tilt above 30 degrees or the base below 0.18 m.
+Estimator accuracy limits (issue 5): forward-velocity RMS error <= 0.10 m/s at 1.0 m/s trot and
+<= 0.15 m/s at 2.5 m/s fly trot, |bias| <= 0.05 m/s, drift while standing <= 0.02 m/s.
 """
 
 from __future__ import annotations
@@ -36,12 +38,16 @@ def test_gait_tracks_speed_for_10_s(gait, speed):
     assert not traj.fell, f"{gait} at {speed} m/s fell at t={traj.fall_time}"
     vx = traj.mean_velocity(5.0)[0]
     assert vx == pytest.approx(speed, rel=0.10), f"mean v_x over the last 5 s: {vx:.3f} m/s"
+    rms, bias = traj.estimator_error(start=1.0)
+    assert rms <= (0.15 if speed > 2.0 else 0.10) and abs(bias) <= 0.05, f"estimator rms {rms}, bias {bias}"
 
 
 @pytest.mark.slow
 def test_paper_acceleration_profile_with_speed_scheduled_gaits():
     traj = run_closed_loop(lambda t, c: gait_for_speed(c.vx, GAITS), ramp_profile(2.5, 1.0), 20.0)
     assert not traj.fell, f"fell at t={traj.fall_time}"
+    rms, bias = traj.estimator_error(start=1.0)
+    assert rms <= 0.15 and abs(bias) <= 0.05
     assert traj.mean_velocity(10.0)[0] == pytest.approx(2.5, rel=0.10)
 
 
@@ -65,3 +71,13 @@ def test_standing_still_does_not_drift():
     assert not traj.fell
     drift = np.linalg.norm(traj.position[-1][:2] - traj.position[0][:2])
     assert drift < 0.05, f"drifted {drift:.3f} m in 10 s"
+    estimated = np.asarray(traj.estimated_velocity)[:, :2]
+    assert np.abs(estimated.mean(axis=0)).max() <= 0.02  # the estimate does not drift either
+
+
+@pytest.mark.slow
+def test_controller_alone_on_ground_truth_velocity():
+    """The controller without the estimator (isolates control from estimation problems)."""
+    traj = run_closed_loop(fixed("rapid_trot"), ramp_profile(1.5), 6.0, velocity_source="ground_truth")
+    assert not traj.fell
+    assert traj.mean_velocity(3.0)[0] == pytest.approx(1.5, rel=0.10)

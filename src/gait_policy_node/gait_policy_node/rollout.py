@@ -22,6 +22,7 @@ from convex_mpc_node.controller import (
 )
 from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import GaitParams
+from state_estimator_node.estimator import EstimatorConfig, SensorSample, VelocityEstimator
 
 POLICY_PERIOD = 0.05  # [s]: gait parameters change at 20 Hz
 FALL_TILT = np.radians(30.0)  # a fall: body tilted more than this ...
@@ -38,11 +39,14 @@ def ramp_profile(target: float, acceleration: float = 1.0) -> SpeedProfile:
 
 @dataclass
 class Trajectory:
-    """Per control step records (ground truth) of one closed-loop run."""
+    """Per control step records of one closed-loop run (ground truth unless said otherwise)."""
 
     time: list[float] = field(default_factory=list)
     position: list[np.ndarray] = field(default_factory=list)  # world [m]
-    velocity: list[np.ndarray] = field(default_factory=list)  # world [m/s]
+    velocity: list[np.ndarray] = field(default_factory=list)  # world [m/s], after the step
+    # Estimator output the controller saw (world [m/s]), and the true velocity at that moment.
+    estimated_velocity: list[np.ndarray] = field(default_factory=list)
+    true_velocity: list[np.ndarray] = field(default_factory=list)
     yaw_rate: list[float] = field(default_factory=list)  # world z [rad/s]
     command: list[VelocityCommand] = field(default_factory=list)
     power: list[float] = field(default_factory=list)  # sum of motor powers [W]
@@ -54,6 +58,12 @@ class Trajectory:
     physics_time: list[float] = field(default_factory=list)  # [s] wall per sim step
     qp_build_time: list[float] = field(default_factory=list)  # [s] wall per MPC QP build
     qp_solve_time: list[float] = field(default_factory=list)  # [s] wall per OSQP update + solve
+
+    def estimator_error(self, start: float, axis: int = 0) -> tuple[float, float]:
+        """RMS and mean of (estimated - true) velocity along ``axis`` from ``start`` [m/s]."""
+        t = np.asarray(self.time)
+        err = (np.asarray(self.estimated_velocity) - np.asarray(self.true_velocity))[t >= start, axis]
+        return float(np.sqrt(np.mean(err**2))), float(np.mean(err))
 
     def mean_velocity(self, start: float, end: float | None = None) -> np.ndarray:
         t = np.asarray(self.time)
@@ -67,14 +77,26 @@ def tilted_or_low(position: np.ndarray, orientation: np.ndarray) -> bool:
     return bool(up_z < np.cos(FALL_TILT) or position[2] < FALL_HEIGHT)
 
 
+VELOCITY_SOURCES = ("estimator", "ground_truth")
+
+
 def run_closed_loop(schedule: GaitSchedule, profile: SpeedProfile, duration: float, *,
                     sim_config: SimConfig | None = None,
-                    controller_config: ControllerConfig | None = None) -> Trajectory:
-    """Run ``duration`` seconds with ground-truth base velocity; stop early at a fall."""
+                    controller_config: ControllerConfig | None = None,
+                    velocity_source: str = "estimator",
+                    estimator_config: EstimatorConfig | None = None) -> Trajectory:
+    """Run ``duration`` seconds; stop early at a fall.
+
+    ``velocity_source``: "estimator" (the Kalman filter on the sensors, as on the robot) or
+    "ground_truth" (the simulator's, for isolating the controller).
+    """
+    if velocity_source not in VELOCITY_SOURCES:
+        raise ValueError(f"velocity_source must be one of {VELOCITY_SOURCES}, got {velocity_source!r}")
     sim = A1Sim(sim_config or SimConfig())
     try:
         command = profile(0.0)
         controller = LocomotionController(schedule(0.0, command), controller_config)
+        estimator = VelocityEstimator(estimator_config)
         dt = sim.config.time_step
         steps_per_policy = round(POLICY_PERIOD / dt)
         traj = Trajectory()
@@ -85,8 +107,15 @@ def run_closed_loop(schedule: GaitSchedule, profile: SpeedProfile, duration: flo
                 controller.set_gait(schedule(t, command))
             r = sim.sensors()
             truth = sim.ground_truth()
+            estimate = estimator.update(SensorSample(
+                r.time, r.joint_position, r.joint_velocity, r.imu_orientation, r.imu_angular_velocity,
+                r.imu_linear_acceleration, r.foot_contact, r.foot_force))
+            use_estimate = velocity_source == "estimator"
+            velocity = estimate.velocity_world if use_estimate else truth.base_linear_velocity
+            traj.estimated_velocity.append(estimate.velocity_world)
+            traj.true_velocity.append(truth.base_linear_velocity)
             obs = Observation(r.joint_position, r.joint_velocity, r.imu_orientation, r.imu_angular_velocity,
-                              r.foot_contact, truth.base_linear_velocity)
+                              r.foot_contact, velocity)
             t0 = time.perf_counter()
             joint_command = controller.step(obs, command)
             t1 = time.perf_counter()

@@ -1,0 +1,216 @@
+"""Kalman-filter estimate of the base linear velocity from the IMU and leg kinematics.
+
+The torso velocity cannot be measured on the A1 (paper section 3.1), so it is estimated, from only
+what the robot gives: joint states, IMU (orientation, gyro, specific force) and foot contacts.
+
+- State: base (trunk COM) linear velocity in the world frame [m/s]; F = I.
+- Predict: u = (R a_imu - g e_z) dt, the IMU's specific force rotated to the world with gravity
+  removed. Process noise grows with the elapsed time, so a gap in the data grows the covariance;
+  over a gap longer than ``max_gap`` the acceleration is *not* integrated (no extrapolation).
+- Update, one per foot in contact: leg odometry v = -R (J(q) dq + omega x p_foot), the velocity the
+  base must have for that foot to stay still. Swing feet give no update; a foot that touched down
+  less than ``touchdown_window`` ago, or carries less than ``low_force`` newtons (about to lift
+  off), is trusted ``soft_contact_scale`` times less.
+Built on filterpy.kalman.KalmanFilter. Noise values come from config/state_estimator.yaml.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+from a1_common.config import ConfigError, config_dir, load_node_parameters, require_range
+from a1_common.kinematics import foot_positions, leg_jacobians
+from a1_common.robot import NUM_JOINTS, NUM_LEGS, A1Constants, a1
+from filterpy.kalman import KalmanFilter
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    # Per-axis process noise density: variance added per second of prediction [(m/s)^2 / s].
+    process_noise: tuple[float, float, float] = (7.1e-3, 7.9e-3, 4.4e-2)
+    # Per-axis leg-odometry measurement noise [(m/s)^2] (reference values).
+    measurement_noise: tuple[float, float, float] = (0.010112, 0.004458, 0.020532)
+    initial_covariance: float = 0.1  # [(m/s)^2]
+    touchdown_window: float = 0.02  # [s] after touchdown a foot is trusted less
+    low_force: float = 10.0  # [N] below this a contact foot is trusted less
+    soft_contact_scale: float = 10.0  # measurement noise multiplier for such feet
+    max_gap: float = 0.02  # [s] longer gaps are not integrated
+    stale_timeout: float = 0.05  # [s] without a valid sample -> estimate flagged stale
+    max_covariance: float = 1.0  # [(m/s)^2] trace above this -> flagged diverging
+    max_speed: float = 10.0  # [m/s] estimate above this -> flagged diverging
+    gravity: float = 9.81  # [m/s^2]
+
+    def validated(self) -> EstimatorConfig:
+        for name in ("process_noise", "measurement_noise"):
+            values = np.asarray(getattr(self, name), dtype=float)
+            if values.shape != (3,) or not np.all(np.isfinite(values)) or np.any(values <= 0):
+                raise ConfigError(f"{name} must be 3 positive numbers, got {getattr(self, name)!r}")
+        require_range("initial_covariance", self.initial_covariance, 0.0, 100.0, low_open=True)
+        require_range("touchdown_window", self.touchdown_window, 0.0, 1.0)
+        require_range("low_force", self.low_force, 0.0, 1000.0)
+        require_range("soft_contact_scale", self.soft_contact_scale, 1.0, 1e6)
+        require_range("max_gap", self.max_gap, 0.0, 1.0, low_open=True)
+        require_range("stale_timeout", self.stale_timeout, 0.0, 10.0, low_open=True)
+        require_range("max_covariance", self.max_covariance, 0.0, 1e6, low_open=True)
+        require_range("max_speed", self.max_speed, 0.0, 100.0, low_open=True)
+        require_range("gravity", self.gravity, 0.0, 20.0, low_open=True)
+        return self
+
+
+def load_estimator_config(path=None) -> EstimatorConfig:
+    """EstimatorConfig from the node's parameter file (default ``config/state_estimator.yaml``)."""
+    path = path or config_dir() / "state_estimator.yaml"
+    params = load_node_parameters(path, "state_estimator")
+    fields = {f.name for f in dataclasses.fields(EstimatorConfig)}
+    unknown = sorted(set(params) - fields)
+    if unknown:
+        raise ConfigError(f"{path}: unknown estimator parameters {unknown}; allowed: {sorted(fields)}")
+    args = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
+    try:
+        return EstimatorConfig(**args).validated()
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+@dataclass
+class SensorSample:
+    """One set of robot sensor readings (what a real A1 reports)."""
+
+    time: float  # [s]
+    joint_position: np.ndarray  # (12,) [rad]
+    joint_velocity: np.ndarray  # (12,) [rad/s]
+    orientation: np.ndarray  # (4,) base orientation (x, y, z, w)
+    angular_velocity: np.ndarray  # (3,) base frame [rad/s]
+    linear_acceleration: np.ndarray  # (3,) specific force, base frame [m/s^2]
+    foot_contact: np.ndarray  # (4,) bool
+    foot_force: np.ndarray  # (4,) [N]
+
+
+@dataclass
+class Estimate:
+    time: float  # [s]
+    velocity_world: np.ndarray  # (3,) [m/s]
+    velocity_body: np.ndarray  # (3,) [m/s]
+    covariance_world: np.ndarray  # (3, 3) [(m/s)^2]
+    covariance_body: np.ndarray  # (3, 3)
+    orientation: np.ndarray  # (4,) (x, y, z, w), from the IMU
+    height: float | None  # base COM above the ground under the stance feet [m]; None if no contact
+    stale: bool
+    diverging: bool
+    feet_used: int  # feet that updated the filter this sample
+
+
+def _rotation(q: np.ndarray) -> np.ndarray:
+    x, y, z, w = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+class VelocityEstimator:
+    """Feed ``update`` every sensor sample (500 Hz); read the returned Estimate."""
+
+    def __init__(self, config: EstimatorConfig | None = None, robot: A1Constants | None = None) -> None:
+        self.config = (config or load_estimator_config()).validated()
+        self.robot = robot or a1()
+        self.rejected_samples = 0
+        self.reset()
+
+    def reset(self, velocity: np.ndarray | None = None) -> None:
+        """Start over at ``velocity`` (default: at rest) with the initial covariance."""
+        kf = KalmanFilter(dim_x=3, dim_z=3, dim_u=3)
+        kf.F = np.eye(3)
+        kf.B = np.eye(3)
+        kf.H = np.eye(3)
+        kf.x = np.zeros(3) if velocity is None else np.asarray(velocity, dtype=float).copy()
+        kf.P = np.eye(3) * self.config.initial_covariance
+        self._kf = kf
+        self._last_time: float | None = None
+        self._contact_since = np.full(NUM_LEGS, -np.inf)  # touchdown time of each foot
+        self._was_contact = np.zeros(NUM_LEGS, dtype=bool)
+        self._orientation = np.array([0.0, 0.0, 0.0, 1.0])
+        self._height: float | None = None
+        self._feet_used = 0
+
+    def update(self, sample: SensorSample) -> Estimate:
+        """Predict with the IMU, correct with the stance legs; bad samples are rejected and counted."""
+        if not self._valid(sample):
+            self.rejected_samples += 1
+            return self.estimate(sample.time if np.isfinite(sample.time) else (self._last_time or 0.0))
+        cfg = self.config
+        kf = self._kf
+        rot = _rotation(np.asarray(sample.orientation, dtype=float) / np.linalg.norm(sample.orientation))
+        dt = 0.0 if self._last_time is None else sample.time - self._last_time
+        if dt < 0:  # time went backwards: the source restarted
+            self.reset()
+            dt = 0.0
+        specific_force = np.asarray(sample.linear_acceleration, dtype=float)
+        accel_world = rot @ specific_force - np.array([0.0, 0.0, cfg.gravity])
+        u = accel_world * dt if dt <= cfg.max_gap else np.zeros(3)  # no extrapolation over gaps
+        kf.predict(u=u, Q=np.diag(cfg.process_noise) * dt)
+        self._last_time = sample.time
+
+        contact = np.asarray(sample.foot_contact, dtype=bool)
+        touchdown = contact & ~self._was_contact
+        self._contact_since[touchdown] = sample.time
+        self._was_contact = contact
+        q = np.asarray(sample.joint_position, dtype=float)
+        dq = np.asarray(sample.joint_velocity, dtype=float)
+        omega = np.asarray(sample.angular_velocity, dtype=float)
+        feet = foot_positions(self.robot, q)
+        jac = leg_jacobians(self.robot, q)
+        r_base = np.diag(cfg.measurement_noise)
+        used = 0
+        radius_up = np.array([0.0, 0.0, self.robot.foot_radius])
+        for leg in np.flatnonzero(contact):
+            a, _, _ = q[3 * leg:3 * leg + 3]
+            da, dh, dk = dq[3 * leg:3 * leg + 3]
+            foot_velocity = jac[leg] @ dq[3 * leg:3 * leg + 3] + np.cross(omega, feet[leg])  # base frame
+            # The foot is a sphere rolling on the ground: its centre (what the kinematics give) moves
+            # at omega_foot x (r e_z) while the contact point stays still (about 7% of the speed).
+            omega_foot = omega + np.array([da, (dh + dk) * np.cos(a), (dh + dk) * np.sin(a)])
+            z = -rot @ foot_velocity + np.cross(rot @ omega_foot, radius_up)
+            scale = 1.0
+            if sample.time - self._contact_since[leg] < cfg.touchdown_window:
+                scale *= cfg.soft_contact_scale
+            if sample.foot_force[leg] < cfg.low_force:
+                scale *= cfg.soft_contact_scale
+            kf.update(z, R=r_base * scale)
+            used += 1
+        self._feet_used = used
+        self._orientation = np.asarray(sample.orientation, dtype=float)
+        if contact.any():
+            ground = -(rot @ feet[contact].T)[2] + self.robot.foot_radius
+            self._height = float(np.mean(ground))
+        return self.estimate(sample.time)
+
+    def estimate(self, now: float) -> Estimate:
+        """The current estimate as seen at ``now`` (flags stale if no valid sample recently)."""
+        cfg = self.config
+        kf = self._kf
+        rot = _rotation(self._orientation)
+        v = kf.x.reshape(3).copy()
+        cov = np.array(kf.P)
+        stale = self._last_time is None or now - self._last_time > cfg.stale_timeout
+        diverging = bool(np.trace(cov) > cfg.max_covariance or np.linalg.norm(v) > cfg.max_speed
+                         or not np.all(np.isfinite(v)))
+        return Estimate(time=now, velocity_world=v, velocity_body=rot.T @ v, covariance_world=cov,
+                        covariance_body=rot.T @ cov @ rot, orientation=self._orientation.copy(),
+                        height=self._height, stale=stale, diverging=diverging, feet_used=self._feet_used)
+
+    @staticmethod
+    def _valid(sample: SensorSample) -> bool:
+        arrays = ((sample.joint_position, (NUM_JOINTS,)), (sample.joint_velocity, (NUM_JOINTS,)),
+                  (sample.orientation, (4,)), (sample.angular_velocity, (3,)),
+                  (sample.linear_acceleration, (3,)), (sample.foot_force, (NUM_LEGS,)))
+        for values, shape in arrays:
+            arr = np.asarray(values, dtype=float)
+            if arr.shape != shape or not np.all(np.isfinite(arr)):
+                return False
+        if np.asarray(sample.foot_contact).shape != (NUM_LEGS,) or not np.isfinite(sample.time):
+            return False
+        return bool(np.linalg.norm(sample.orientation) > 0.5)
