@@ -102,6 +102,15 @@ class Estimate:
     feet_used: int  # feet that updated the filter this sample
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (n, 3) arrays (np.cross costs ~60 us of overhead per call)."""
+    a = np.broadcast_to(a, np.broadcast_shapes(np.shape(a), np.shape(b)))
+    b = np.broadcast_to(b, a.shape)
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
 def _rotation(q: np.ndarray) -> np.ndarray:
     x, y, z, w = q
     return np.array([
@@ -163,24 +172,29 @@ class VelocityEstimator:
         omega = np.asarray(sample.angular_velocity, dtype=float)
         feet = foot_positions(self.robot, q)
         jac = leg_jacobians(self.robot, q)
-        r_base = np.diag(cfg.measurement_noise)
         used = 0
-        radius_up = np.array([0.0, 0.0, self.robot.foot_radius])
-        for leg in np.flatnonzero(contact):
-            a, _, _ = q[3 * leg:3 * leg + 3]
-            da, dh, dk = dq[3 * leg:3 * leg + 3]
-            foot_velocity = jac[leg] @ dq[3 * leg:3 * leg + 3] + np.cross(omega, feet[leg])  # base frame
+        legs = np.flatnonzero(contact)
+        used = len(legs)
+        if used:
+            dq_legs = dq.reshape(4, 3)[legs]
+            # Foot-centre velocity relative to the base, base frame, all stance legs at once.
+            foot_velocity = np.einsum("lij,lj->li", jac[legs], dq_legs) + _cross(omega, feet[legs])
             # The foot is a sphere rolling on the ground: its centre (what the kinematics give) moves
-            # at omega_foot x (r e_z) while the contact point stays still (about 7% of the speed).
-            omega_foot = omega + np.array([da, (dh + dk) * np.cos(a), (dh + dk) * np.sin(a)])
-            z = -rot @ foot_velocity + np.cross(rot @ omega_foot, radius_up)
-            scale = 1.0
-            if sample.time - self._contact_since[leg] < cfg.touchdown_window:
-                scale *= cfg.soft_contact_scale
-            if sample.foot_force[leg] < cfg.low_force:
-                scale *= cfg.soft_contact_scale
-            kf.update(z, R=r_base * scale)
-            used += 1
+            # at omega_foot x (r e_z) while the contact point stays still (about 7% of the speed
+            # when walking). omega_foot = omega + abduction rate e_x + (thigh + calf rate) e_y'.
+            abduction = q.reshape(4, 3)[legs, 0]
+            pitch_rate = dq_legs[:, 1] + dq_legs[:, 2]
+            omega_foot = omega + np.stack(
+                [dq_legs[:, 0], pitch_rate * np.cos(abduction), pitch_rate * np.sin(abduction)], axis=1)
+            rolling = _cross(omega_foot @ rot.T, np.array([0.0, 0.0, self.robot.foot_radius]))
+            measurements = -foot_velocity @ rot.T + rolling
+            scale = np.ones(used)
+            scale[sample.time - self._contact_since[legs] < cfg.touchdown_window] *= cfg.soft_contact_scale
+            scale[np.asarray(sample.foot_force)[legs] < cfg.low_force] *= cfg.soft_contact_scale
+            noise = np.outer(scale, cfg.measurement_noise).ravel()
+            # One stacked update with every stance foot (block-diagonal R): the same result as
+            # sequential per-foot updates, at a fraction of the cost.
+            kf.update(measurements.ravel(), R=np.diag(noise), H=np.tile(np.eye(3), (used, 1)))
         self._feet_used = used
         self._orientation = np.asarray(sample.orientation, dtype=float)
         if contact.any():
