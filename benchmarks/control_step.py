@@ -1,7 +1,9 @@
-"""Benchmark the 500 Hz closed loop (sim core + locomotion controller, MPC solved every step).
+"""Benchmark the 500 Hz closed loop (sim core + estimator + controller, MPC solved every step).
 
 For each case prints median and p99 of: QP build, QP solve (OSQP update + solve), whole controller
-step, physics step, and the real-time factor (sim time / wall time of controller + physics).
+step, estimator update, physics step, the closed-loop step (physics + controller, the issue-4
+figure) and the full step with the estimator, and the real-time factor (sim time / wall time of all
+three).
 Goal of issue 4: closed-loop step (physics + controller) median <= 1.0 ms on the 2-core machine.
 Ends with one JSON line of the figures of the first case.
 
@@ -35,15 +37,17 @@ def main() -> None:
         traj = run_closed_loop(lambda t, c, n=name: gaits[n], ramp_profile(speed), args.seconds)
         controller = np.asarray(traj.controller_time)
         physics = np.asarray(traj.physics_time)
+        estimator = np.asarray(traj.estimator_time)
         figures = {
             "qp_build": np.asarray(traj.qp_build_time), "qp_solve": np.asarray(traj.qp_solve_time),
-            "controller_step": controller, "physics_step": physics, "closed_loop_step": controller + physics,
+            "controller_step": controller, "estimator_update": estimator, "physics_step": physics,
+            "closed_loop_step": controller + physics, "full_step": controller + physics + estimator,
         }
         case = f"{name} {speed} m/s"
         for key, values in figures.items():
             median, p99 = np.median(values) * 1e3, np.percentile(values, 99) * 1e3
             print(f"{case:<18}{key:<22}{median:>10.3f}{p99:>10.3f}")
-        rtf = traj.time[-1] / float(np.sum(controller + physics))
+        rtf = traj.time[-1] / float(np.sum(controller + physics + estimator))
         print(f"{case:<18}{'real-time factor':<22}{rtf:>10.2f}{'':>10}  (fell: {traj.fell}, "
               f"MPC fallbacks: {traj.mpc_fallbacks})")
         if first is None:

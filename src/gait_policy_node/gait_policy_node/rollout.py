@@ -56,6 +56,7 @@ class Trajectory:
     mpc_fallbacks: int = 0
     controller_time: list[float] = field(default_factory=list)  # [s] wall per controller step
     physics_time: list[float] = field(default_factory=list)  # [s] wall per sim step
+    estimator_time: list[float] = field(default_factory=list)  # [s] wall per estimator update
     qp_build_time: list[float] = field(default_factory=list)  # [s] wall per MPC QP build
     qp_solve_time: list[float] = field(default_factory=list)  # [s] wall per OSQP update + solve
 
@@ -107,9 +108,11 @@ def run_closed_loop(schedule: GaitSchedule, profile: SpeedProfile, duration: flo
                 controller.set_gait(schedule(t, command))
             r = sim.sensors()
             truth = sim.ground_truth()
+            t_est = time.perf_counter()
             estimate = estimator.update(SensorSample(
                 r.time, r.joint_position, r.joint_velocity, r.imu_orientation, r.imu_angular_velocity,
                 r.imu_linear_acceleration, r.foot_contact, r.foot_force))
+            traj.estimator_time.append(time.perf_counter() - t_est)
             use_estimate = velocity_source == "estimator"
             velocity = estimate.velocity_world if use_estimate else truth.base_linear_velocity
             traj.estimated_velocity.append(estimate.velocity_world)
