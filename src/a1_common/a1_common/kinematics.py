@@ -83,3 +83,13 @@ def inverse_kinematics(robot: A1Constants, feet: np.ndarray) -> np.ndarray:
     a = np.arctan2(z, y) - np.arctan2(z0, side)
     a = (a + np.pi) % (2 * np.pi) - np.pi
     return np.stack([a, h, k], axis=1).reshape(-1)
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix (base -> world) of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])

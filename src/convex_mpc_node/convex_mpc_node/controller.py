@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from a1_common.command import JointCommand
 from a1_common.config import ConfigError, config_dir, load_node_parameters
-from a1_common.kinematics import foot_positions, inverse_kinematics, leg_jacobians
+from a1_common.kinematics import foot_positions, inverse_kinematics, leg_jacobians, quat_to_matrix
 from a1_common.robot import NUM_LEGS, A1Constants, a1
 
 from convex_mpc_node.gait import GaitParams, LegState, PhaseIntegrator
@@ -86,15 +86,6 @@ class VelocityCommand:
     vx: float = 0.0
     vy: float = 0.0
     yaw_rate: float = 0.0
-
-
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    x, y, z, w = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
 
 
 def swing_curve(p0: np.ndarray, p_air: np.ndarray, p_land: np.ndarray, s: float) -> np.ndarray:

@@ -12,14 +12,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from a1_common.kinematics import quat_to_matrix
 from a1_sim_bridge.sim import A1Sim, SimConfig
-from convex_mpc_node.controller import (
-    ControllerConfig,
-    LocomotionController,
-    Observation,
-    VelocityCommand,
-    quat_to_matrix,
-)
+from convex_mpc_node.controller import ControllerConfig, LocomotionController, Observation, VelocityCommand
 from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import GaitParams
 from state_estimator_node.estimator import EstimatorConfig, SensorSample, VelocityEstimator

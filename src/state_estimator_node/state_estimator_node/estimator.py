@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from a1_common.config import ConfigError, config_dir, load_node_parameters, require_range
-from a1_common.kinematics import foot_positions, leg_jacobians
+from a1_common.kinematics import foot_positions, leg_jacobians, quat_to_matrix
 from a1_common.robot import NUM_JOINTS, NUM_LEGS, A1Constants, a1
 from filterpy.kalman import KalmanFilter
 
@@ -111,15 +111,6 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                      a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
 
 
-def _rotation(q: np.ndarray) -> np.ndarray:
-    x, y, z, w = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
-
-
 class VelocityEstimator:
     """Feed ``update`` every sensor sample (500 Hz); read the returned Estimate."""
 
@@ -152,7 +143,7 @@ class VelocityEstimator:
             return self.estimate(sample.time if np.isfinite(sample.time) else (self._last_time or 0.0))
         cfg = self.config
         kf = self._kf
-        rot = _rotation(np.asarray(sample.orientation, dtype=float) / np.linalg.norm(sample.orientation))
+        rot = quat_to_matrix(np.asarray(sample.orientation, dtype=float) / np.linalg.norm(sample.orientation))
         dt = 0.0 if self._last_time is None else sample.time - self._last_time
         if dt < 0:  # time went backwards: the source restarted
             self.reset()
@@ -206,7 +197,7 @@ class VelocityEstimator:
         """The current estimate as seen at ``now`` (flags stale if no valid sample recently)."""
         cfg = self.config
         kf = self._kf
-        rot = _rotation(self._orientation)
+        rot = quat_to_matrix(self._orientation)
         v = kf.x.reshape(3).copy()
         cov = np.array(kf.P)
         stale = self._last_time is None or now - self._last_time > cfg.stale_timeout
