@@ -1,23 +1,25 @@
 #!/usr/bin/env bash
-# Main demo: set up the workspace if needed, bring up the simulated A1 headless and show its state.
+# Main demo: set up the workspace if needed, bring up the whole A1 stack headless, drive the paper's
+# speed profile (0 -> 2.5 m/s at 1 m/s^2, then hold), and report.
 #
 # Usage: scripts/demo.sh [--world flat|step|rough|soft|slope] [--duration SECONDS] [--clock lockstep|realtime]
+#                        [--policy scheduled|walk|slow_trot|rapid_trot|fly_trot]
 #
-# Starts the sim bridge, the joint_hold stand-up tool (joint PD to the standing pose, what the
-# controller's stand mode will replace) and the robot_state_monitor, which prints the robot's
-# state and stops after --duration seconds of sim time. Every node started here is stopped on
-# exit, Ctrl-C or SIGTERM. Per-node logs: log/demo/<node>.log.
+# Starts sim_bridge, state_estimator, convex_mpc and gait_policy (scripts/lib/nodes.sh), the
+# velocity_command ramp and demo_report, which after --duration seconds of sim time (default 20)
+# prints distance, speed tracking, gait, power and cost of transport per speed band, and writes
+# a gait diagram PNG (log/demo/gait_diagram.png). Every node started here is stopped on exit,
+# Ctrl-C or SIGTERM. Per-node logs: log/demo/<node>.log.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-WORLD=flat
-DURATION=5
-CLOCK=lockstep
+WORLD=flat DURATION=20 CLOCK=lockstep POLICY=scheduled
 while [ $# -gt 0 ]; do
   case "$1" in
     --world) WORLD="${2:?--world needs a value}"; shift 2 ;;
     --duration) DURATION="${2:?--duration needs a value}"; shift 2 ;;
     --clock) CLOCK="${2:?--clock needs a value}"; shift 2 ;;
-    -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
+    --policy) POLICY="${2:?--policy needs a value}"; shift 2 ;;
+    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
     *) echo "demo.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -37,23 +39,25 @@ mkdir -p "$LOGDIR"
 trap stop_nodes EXIT
 trap 'exit 130' INT TERM
 
-echo "[demo] world=$WORLD clock=$CLOCK duration=${DURATION}s (logs in $LOGDIR)"
-start_node a1_sim_bridge sim_bridge "$LOGDIR" --ros-args --params-file "$ROOT/config/a1_sim_bridge.yaml" \
-  -p world:="$WORLD" -p clock_mode:="$CLOCK"
-start_node a1_sim_bridge joint_hold "$LOGDIR"
-# The monitor runs in the foreground of a `wait`, so Ctrl-C / SIGTERM reach the traps at once, and
-# under a wall-clock cap, so a graph that never publishes cannot hang the demo.
-cap=$(awk "BEGIN{print int($DURATION * 5 + 60)}")
-_node_command a1_sim_bridge robot_state_monitor
-setsid timeout "$cap" "${_GS_CMD[@]}" --ros-args -p duration:="$DURATION" -p print_period:=0.5 &
-monitor=$!
-_GS_PIDS+=("$monitor")  # stopped with the others on exit
-while kill -0 "$monitor" 2>/dev/null; do
+echo "[demo] world=$WORLD clock=$CLOCK policy=$POLICY duration=${DURATION}s of sim time (logs in $LOGDIR)"
+start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY"
+# The ramp starts after 1.5 s: the controller stands up first (stand_time in config/convex_mpc.yaml).
+start_node gait_policy_node velocity_command "$LOGDIR" --ros-args -p use_sim_time:=true -p profile:=ramp \
+  -p speed:=2.5 -p acceleration:=1.0 -p start_delay:=1.5
+# The report runs in the foreground of a `wait`, so Ctrl-C / SIGTERM reach the traps at once, and
+# under a wall-clock cap, so a graph that stalls cannot hang the demo.
+cap=$(awk "BEGIN{print int($DURATION * 10 + 120)}")
+_node_command gait_policy_node demo_report
+setsid timeout "$cap" "${_GS_CMD[@]}" --ros-args -p use_sim_time:=true \
+  -p duration:="$(awk "BEGIN{print $DURATION + 1.5}")" \
+  -p output:="$LOGDIR/gait_diagram.png" &
+report=$!
+_GS_PIDS+=("$report")  # stopped with the others on exit
+while kill -0 "$report" 2>/dev/null; do
   if ! check_nodes; then
     tail -n 20 "$LOGDIR"/*.log >&2
-    kill "$monitor" 2>/dev/null || true
     exit 1
   fi
   sleep 0.5 & wait $! || true
 done
-wait "$monitor" || { rc=$?; [ "$rc" = 124 ] && echo "[demo] ERROR: no robot state after ${cap}s; logs in $LOGDIR" >&2; exit "$rc"; }
+wait "$report" || { rc=$?; [ "$rc" = 124 ] && echo "[demo] ERROR: no report after ${cap}s; logs in $LOGDIR" >&2; exit "$rc"; }

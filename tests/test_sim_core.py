@@ -96,8 +96,8 @@ def test_watchdog_falls_back_to_damping_and_counts():
     robot_cmd = JointCommand(kp=np.full(12, 5.0))
     assert wd.active(0.0).mode == MotorMode.DAMPING  # nothing received yet
     assert wd.offer(robot_cmd, now=0.0)
-    assert wd.active(0.05).mode == MotorMode.HYBRID
-    assert wd.active(0.051).mode == MotorMode.DAMPING
+    assert wd.active(0.049).mode == MotorMode.HYBRID
+    assert wd.active(0.05).mode == MotorMode.DAMPING
     assert wd.timeouts == 1 and wd.in_fallback
     bad = JointCommand(kp=np.full(12, np.nan))
     assert not wd.offer(bad, now=0.06)
@@ -112,8 +112,8 @@ def test_watchdog_timeout_is_the_same_number_of_steps_at_any_time():
         wd = CommandWatchdog(timeout=0.05)
         t0 = start_step * 0.002
         wd.offer(JointCommand(), now=t0)
-        assert wd.active((start_step + 25) * 0.002).mode == MotorMode.HYBRID
-        assert wd.active((start_step + 26) * 0.002).mode == MotorMode.DAMPING
+        assert wd.active((start_step + 24) * 0.002).mode == MotorMode.HYBRID
+        assert wd.active((start_step + 25) * 0.002).mode == MotorMode.DAMPING
 
 
 def test_damping_lowers_the_robot_slowly(sim):

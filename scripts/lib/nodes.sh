@@ -46,3 +46,15 @@ stop_nodes() {  # SIGINT each started node's process group, then SIGKILL what is
   for pid in "${_GS_PIDS[@]}"; do kill -KILL -- "-$pid" 2>/dev/null || true; done
   _GS_PIDS=()
 }
+
+start_graph() {  # <logdir> <world> <clock> <policy>: the sim bridge and the three stack nodes
+  local logdir=$1 world=$2 clock=$3 policy=$4 cfg="$GAIT_STACK_ROOT/config"
+  start_node a1_sim_bridge sim_bridge "$logdir" --ros-args --params-file "$cfg/a1_sim_bridge.yaml" \
+    -p world:="$world" -p clock_mode:="$clock"
+  start_node state_estimator_node state_estimator "$logdir" --ros-args --params-file "$cfg/state_estimator.yaml" \
+    -p use_sim_time:=true
+  start_node convex_mpc_node convex_mpc "$logdir" --ros-args --params-file "$cfg/convex_mpc.yaml" \
+    -p use_sim_time:=true
+  start_node gait_policy_node gait_policy "$logdir" --ros-args --params-file "$cfg/gait_policy.yaml" \
+    -p use_sim_time:=true -p policy:="$policy"
+}

@@ -9,8 +9,15 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
+        ("share/" + PACKAGE + "/config", ["../../config/gait_policy.yaml"]),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
-    entry_points={"console_scripts": []},
+    entry_points={
+        "console_scripts": [
+            "gait_policy = gait_policy_node.policy_node:main",
+            "velocity_command = gait_policy_node.velocity_command:main",
+            "demo_report = gait_policy_node.demo_report:main",
+        ]
+    },
 )

@@ -99,8 +99,8 @@ class JointCommand:
 class CommandWatchdog:
     """Gate between incoming commands and the motors, with the real A1's safety behaviour.
 
-    Invalid commands are rejected (counted, with the reason kept) and never applied; when no valid
-    command arrived for ``timeout`` seconds the motors go to damping. Times are in seconds of
+    Invalid commands are rejected (counted, with the reason kept) and never applied; once the last
+    valid command is ``timeout`` seconds old the motors go to damping. Times are in seconds of
     whichever clock drives the motors (sim time in simulation, wall time on hardware).
     """
 
@@ -140,8 +140,9 @@ class CommandWatchdog:
 
     def active(self, now: float) -> JointCommand:
         """The command to apply at ``now``: the latest valid one, or damping if it is stale."""
-        # The tolerance keeps the timeout a whole number of steps whatever the absolute time.
-        stale = self._command is None or now - self._received_at > self.timeout + 1e-9
+        # Damped from the moment the command is ``timeout`` old (a 50 ms timeout at 2 ms steps
+        # damps the 25th step after it); the tolerance keeps that exact at any absolute time.
+        stale = self._command is None or now - self._received_at >= self.timeout - 1e-9
         if stale and not self._in_fallback:
             self.timeouts += 1
         self._in_fallback = stale

@@ -40,14 +40,20 @@ class ControllerConfig:
     mpc: MpcConfig = field(default_factory=MpcConfig)
 
 
-def load_controller_config(path=None) -> ControllerConfig:
-    """ControllerConfig from the node's parameter file (default ``config/convex_mpc.yaml``).
+def controller_parameter_defaults() -> dict:
+    """ControllerConfig as flat parameters (``mpc_<field>`` for MpcConfig fields), lists for tuples."""
+    flat = {}
+    defaults = ControllerConfig()
+    for f in dataclasses.fields(ControllerConfig):
+        if f.name != "mpc":
+            flat[f.name] = getattr(defaults, f.name)
+    for f in dataclasses.fields(MpcConfig):
+        flat["mpc_" + f.name] = getattr(defaults.mpc, f.name)
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in flat.items()}
 
-    Keys ``mpc_<field>`` set MpcConfig fields, the others ControllerConfig fields; unknown keys
-    are errors naming the key.
-    """
-    path = path or config_dir() / "convex_mpc.yaml"
-    params = load_node_parameters(path, "convex_mpc")
+
+def controller_config_from_parameters(params: dict, source: str = "parameters") -> ControllerConfig:
+    """ControllerConfig from flat parameters; unknown keys and bad values name the key."""
     mpc_fields = {f.name for f in dataclasses.fields(MpcConfig)}
     top_fields = {f.name for f in dataclasses.fields(ControllerConfig)} - {"mpc"}
     mpc_args, top_args = {}, {}
@@ -59,12 +65,31 @@ def load_controller_config(path=None) -> ControllerConfig:
             top_args[key] = value
         else:
             allowed = sorted(top_fields | {"mpc_" + f for f in mpc_fields})
-            raise ConfigError(f"{path}: unknown controller parameter '{key}'; allowed: {allowed}")
+            raise ConfigError(f"{source}: unknown controller parameter '{key}'; allowed: {allowed}")
     try:
         mpc = MpcConfig(**mpc_args).validated()
     except ValueError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
+        raise ConfigError(f"{source}: {exc}") from None
     return ControllerConfig(mpc=mpc, **top_args)
+
+
+def load_controller_config(path=None, ignore: frozenset[str] = frozenset()) -> ControllerConfig:
+    """ControllerConfig from the node's parameter file (default ``config/convex_mpc.yaml``).
+
+    Keys in ``ignore`` belong to the node, not the controller core (default: the supervisor's and
+    the node's own, which live in the same file).
+    """
+    path = path or config_dir() / "convex_mpc.yaml"
+    params = load_node_parameters(path, "convex_mpc")
+    skip = ignore or NODE_ONLY_PARAMETERS
+    return controller_config_from_parameters({k: v for k, v in params.items() if k not in skip}, str(path))
+
+
+# Keys of config/convex_mpc.yaml that configure the supervisor and the node, not the controller core.
+NODE_ONLY_PARAMETERS = frozenset({
+    "mode", "stand_time", "input_timeout", "gait_timeout", "cmd_vel_timeout", "max_acceleration",
+    "max_forward_speed", "max_lateral_speed", "max_yaw_rate", "cmd_vel_stamped", "mass_for_cot",
+})
 
 
 @dataclass

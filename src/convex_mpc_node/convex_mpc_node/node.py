@@ -1,0 +1,237 @@
+"""convex_mpc node: the 500 Hz locomotion controller behind the robot's topics.
+
+Runs one control step per sensor step: when /odom (the estimator's output, computed from the
+joint state stamped t_k) arrives and the joint state, IMU and contacts of t_k are in, it publishes
+/motor_command stamped t_k (what the sim bridge's lockstep mode waits for) and /gait/state. If
+/odom goes stale, each /joint_states triggers a safe-stance step instead (see supervisor.py). With
+no /joint_states there is nothing to command: the bridge's own watchdog damps the motors, and
+/diagnostics here says the sensors are missing.
+
+Inputs: /cmd_vel (geometry_msgs/Twist, or TwistStamped with ``cmd_vel_stamped``), /gait/params,
+/joint_states, /imu/data, /foot_contacts, /odom; /estop (std_msgs/Bool, true latches damping) and
+~/clear_estop (std_srvs/Trigger). Runtime parameter ``mode``: stand | walk | damping.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections import deque
+
+import numpy as np
+from a1_common.config import ConfigError
+from a1_common.kinematics import quat_to_matrix
+from a1_common.node_support import coerce_parameter, declare_parameters, run_node
+from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp
+from a1_sim_bridge.node import CONTROL_QOS
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Twist, TwistStamped
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from convex_mpc_node.controller import (
+    LocomotionController,
+    Observation,
+    controller_config_from_parameters,
+    controller_parameter_defaults,
+)
+from convex_mpc_node.energy import cost_of_transport, motor_power
+from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
+from convex_mpc_node.supervisor import ControllerSupervisor, SupervisorConfig
+from gait_msgs.msg import FootContacts, GaitState, MotorCommand
+from gait_msgs.msg import GaitParams as GaitParamsMsg
+
+COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+NODE_PARAMETERS = {"cmd_vel_stamped": False, "mass_for_cot": 12.458}
+
+
+def _supervisor_defaults() -> dict:
+    return {f.name: f.default for f in dataclasses.fields(SupervisorConfig)}
+
+
+class ConvexMpcNode(Node):
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("convex_mpc", **node_kwargs)
+        controller_defaults = controller_parameter_defaults()
+        params = declare_parameters(self, {**controller_defaults, **_supervisor_defaults(), **NODE_PARAMETERS})
+        controller_config = controller_config_from_parameters(
+            {k: params[k] for k in controller_defaults}, source="parameters of convex_mpc")
+        supervisor_config = SupervisorConfig(**{k: params[k] for k in _supervisor_defaults()}).validated()
+        gaits = load_hand_tuned_gaits()
+        self.controller = LocomotionController(gaits["slow_trot"], controller_config)
+        self.supervisor = ControllerSupervisor(self.controller, supervisor_config)
+        self.mass = float(params["mass_for_cot"])
+        self.period = controller_config.control_period
+        self._joints: dict[int, JointState] = {}
+        self._imu: dict[int, Imu] = {}
+        self._contacts: dict[int, FootContacts] = {}
+        self._odom_ns = -1
+        self._last_sensor_wall = float("-inf")
+        self._solve_times: deque[float] = deque(maxlen=500)
+        self._step_times: deque[float] = deque(maxlen=500)
+        self._powers: deque[float] = deque(maxlen=500)
+        self._speeds: deque[float] = deque(maxlen=500)
+        self._missed = 0
+        self._steps = 0
+        self._state = "waiting"
+
+        self.pub_command = self.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
+        self.pub_state = self.create_publisher(GaitState, "/gait/state", CONTROL_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        if params["cmd_vel_stamped"]:
+            self.create_subscription(TwistStamped, "/cmd_vel", lambda m: self._on_cmd_vel(m.twist), COMMAND_QOS)
+        else:
+            self.create_subscription(Twist, "/cmd_vel", self._on_cmd_vel, COMMAND_QOS)
+        self.create_subscription(GaitParamsMsg, "/gait/params", self._on_gait_params, COMMAND_QOS)
+        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
+        self.create_subscription(Imu, "/imu/data", lambda m: self._store(self._imu, m), CONTROL_QOS)
+        self.create_subscription(FootContacts, "/foot_contacts", lambda m: self._store(self._contacts, m),
+                                 CONTROL_QOS)
+        self.create_subscription(Odometry, "/odom", self._on_odom, CONTROL_QOS)
+        estop_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+        self.create_subscription(Bool, "/estop", self._on_estop, estop_qos)
+        self.create_service(Trigger, "~/clear_estop", self._on_clear_estop)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self._latest_odom: Odometry | None = None
+
+    # --- inputs --------------------------------------------------------------------------------
+    def _now(self) -> float:
+        return self._latest_stamp_ns() * 1e-9
+
+    def _latest_stamp_ns(self) -> int:
+        return max(self._joints) if self._joints else 0
+
+    @staticmethod
+    def _store(buffer: dict, msg) -> None:
+        buffer[ns_from_stamp(msg.header.stamp)] = msg
+        while len(buffer) > 50:  # keep the last 0.1 s of sensor steps
+            del buffer[min(buffer)]
+
+    def _on_cmd_vel(self, twist: Twist) -> None:
+        if not self.supervisor.on_cmd_vel(twist.linear.x, twist.linear.y, twist.angular.z, self._now()):
+            self.get_logger().warning("rejected /cmd_vel with NaN/inf", throttle_duration_sec=1.0)
+
+    def _on_gait_params(self, msg: GaitParamsMsg) -> None:
+        params = GaitParams(msg.stepping_frequency, msg.swing_ratio, tuple(float(v) for v in msg.phase_offsets))
+        if not self.supervisor.on_gait_params(params, self._now()):
+            self.get_logger().warning(
+                "rejected /gait/params: f must be in (0, 4] Hz, swing_ratio in (0, 1), phase offsets "
+                f"in [0, 2pi) with FR = 0; got {params}", throttle_duration_sec=1.0)
+
+    def _on_estop(self, msg: Bool) -> None:
+        if msg.data and not self.supervisor.estopped:
+            self.get_logger().error("E-STOP: motors in damping until ~/clear_estop")
+            self.supervisor.estop()
+
+    def _on_clear_estop(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.supervisor.clear_estop()
+        response.success, response.message = True, "e-stop cleared; standing up"
+        return response
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        for param in params:
+            if param.name != "mode":
+                return SetParametersResult(successful=False,
+                                           reason=f"{param.name} cannot change at runtime; only 'mode' can")
+            try:
+                self.supervisor.set_mode(coerce_parameter("mode", param.value, ""))
+            except ConfigError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _on_joints(self, msg: JointState) -> None:
+        self._store(self._joints, msg)
+        self._last_sensor_wall = time.monotonic()
+        stamp_ns = ns_from_stamp(msg.header.stamp)
+        stale_odom = (stamp_ns - self._odom_ns) * 1e-9 > self.supervisor.config.input_timeout
+        if stale_odom:  # no estimate: step now, on the sensors alone (safe stance)
+            self._control(stamp_ns, None)
+
+    def _on_odom(self, msg: Odometry) -> None:
+        stamp_ns = ns_from_stamp(msg.header.stamp)
+        self._odom_ns = stamp_ns
+        self._latest_odom = msg
+        self._control(stamp_ns, msg)
+
+    # --- the control step ----------------------------------------------------------------------
+    def _control(self, stamp_ns: int, odom: Odometry | None) -> None:
+        joints, imu, contacts = self._joints.get(stamp_ns), self._imu.get(stamp_ns), self._contacts.get(stamp_ns)
+        if joints is None or imu is None or contacts is None:
+            return  # this step's sensors are not all in (yet)
+        t0 = time.perf_counter()
+        o, w = imu.orientation, imu.angular_velocity
+        velocity = np.zeros(3)
+        if odom is not None:  # twist is in base_link: rotate to the world
+            tw = odom.twist.twist.linear
+            velocity = quat_to_matrix(np.array([o.x, o.y, o.z, o.w])) @ np.array([tw.x, tw.y, tw.z])
+        obs = Observation(np.asarray(joints.position, dtype=float), np.asarray(joints.velocity, dtype=float),
+                          np.array([o.x, o.y, o.z, o.w]), np.array([w.x, w.y, w.z]),
+                          np.asarray(contacts.contact, dtype=bool), velocity)
+        result = self.supervisor.step(stamp_ns * 1e-9, obs, velocity_fresh=odom is not None)
+        self.pub_command.publish(motor_command_msg(result.command, joints.header.stamp))
+        elapsed = time.perf_counter() - t0
+        self._steps += 1
+        self._state = result.state
+        self._step_times.append(elapsed)
+        self._missed += elapsed > self.period
+        if result.state == "walk" and self.controller.last_solution is not None:
+            self._solve_times.append(self.controller.last_solution.solve_time)
+        self._powers.append(float(motor_power(np.asarray(joints.effort), np.asarray(joints.velocity)).sum()))
+        self._speeds.append(float(np.linalg.norm(velocity[:2])))
+        self.pub_state.publish(self._gait_state(joints.header.stamp, contacts))
+
+    def _gait_state(self, stamp, contacts: FootContacts) -> GaitState:
+        gait = self.controller.gait
+        msg = GaitState()
+        msg.header.stamp = stamp
+        msg.header.frame_id = "base_link"
+        msg.phases = gait.phases.tolist()
+        msg.desired_contact = [bool(c) for c in gait.desired_contact]
+        msg.leg_states = [int(s) for s in gait.leg_states(np.asarray(contacts.contact, dtype=bool))]
+        p = gait.params
+        msg.params.header.stamp = stamp
+        msg.params.stepping_frequency = p.stepping_frequency
+        msg.params.swing_ratio = p.swing_ratio
+        msg.params.phase_offsets = list(p.phase_offsets)
+        return msg
+
+    def _publish_diagnostics(self) -> None:
+        sup = self.supervisor
+        status = DiagnosticStatus(name="convex_mpc", hardware_id="a1")
+        sensors_missing = time.monotonic() - self._last_sensor_wall > 1.0
+        if sup.estopped:
+            status.level, status.message = DiagnosticStatus.ERROR, "E-STOP latched: damping"
+        elif sensors_missing:
+            status.level, status.message = DiagnosticStatus.ERROR, "no /joint_states: commands stopped (bridge damps)"
+        elif self._state == "safe_stand":
+            status.level, status.message = DiagnosticStatus.WARN, "no fresh /odom: holding a safe stance"
+        else:
+            status.level, status.message = DiagnosticStatus.OK, self._state
+        power = float(np.mean(self._powers)) if self._powers else 0.0
+        speed = float(np.mean(self._speeds)) if self._speeds else 0.0
+        values = {
+            "state": self._state, "requested_mode": sup.requested.value, "steps": self._steps,
+            "qp_solve_median_ms": f"{np.median(self._solve_times) * 1e3:.3f}" if self._solve_times else "n/a",
+            "step_median_ms": f"{np.median(self._step_times) * 1e3:.3f}" if self._step_times else "n/a",
+            "missed_deadlines": self._missed, "mpc_fallbacks": self.controller.mpc_fallbacks,
+            "gait_fallbacks": sup.gait_fallbacks, "safe_stand_steps": sup.safe_stand_steps,
+            "rejected_cmd_vel": sup.rejected_cmd_vel, "rejected_gait_params": sup.rejected_gait_params,
+            "power_w": f"{power:.1f}",
+            "cost_of_transport": f"{cost_of_transport(power, self.mass, speed):.3f}" if speed > 0.1 else "n/a",
+        }
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        self.pub_diag.publish(DiagnosticArray(status=[status]))
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node("convex_mpc", ConvexMpcNode, args)
+
+
+if __name__ == "__main__":
+    main()

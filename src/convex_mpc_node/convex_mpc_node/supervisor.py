@@ -1,0 +1,188 @@
+"""Mode logic around the locomotion controller: stand-up, walk, damping, e-stop, stale inputs.
+
+Library core of the controller node (no ROS): the node only converts messages and calls this.
+- Modes: STAND (joint PD to the nominal pose, ramped from wherever the legs are), WALK (the MPC
+  controller), DAMPING (motors damped, the A1's safe state). Every start, and every return from
+  DAMPING or a stale-input hold, goes through STAND for ``stand_time`` before the requested mode.
+- E-stop: latched DAMPING until cleared, whatever else arrives.
+- Stale inputs: with no base velocity estimate for ``input_timeout`` the robot holds a safe
+  stance (joint PD); when the estimate returns it stands up again and resumes.
+- Commands: /cmd_vel NaN/inf is rejected, values are clamped to the limits, the target is reached
+  at ``max_acceleration``, and it falls back to zero after ``cmd_vel_timeout`` (0 = never).
+- Gait: the last valid gait parameters; after ``gait_timeout`` without any, the hand-tuned gaits
+  scheduled by speed take over (counted).
+Times are seconds of the controller's clock (sim time under a sim bridge).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+from a1_common.command import JointCommand
+from a1_common.config import ConfigError, require_range
+
+from convex_mpc_node.controller import LocomotionController, Observation, VelocityCommand
+from convex_mpc_node.gait import GaitParams, gait_for_speed, load_hand_tuned_gaits
+
+STOOD_UP_JOINT_ERROR = 0.2  # [rad] largest joint error from the nominal pose to start walking
+STOOD_UP_TILT = np.radians(10.0)  # [rad] largest body tilt to start walking
+
+
+class Mode(enum.Enum):
+    STAND = "stand"
+    WALK = "walk"
+    DAMPING = "damping"
+
+
+@dataclass(frozen=True)
+class SupervisorConfig:
+    mode: str = "walk"  # the requested mode after stand-up: stand | walk | damping
+    stand_time: float = 1.0  # [s] ramp to the nominal pose
+    input_timeout: float = 0.05  # [s] without a velocity estimate -> safe stance
+    gait_timeout: float = 0.5  # [s] without /gait/params -> hand-tuned gaits by speed
+    cmd_vel_timeout: float = 2.0  # [s] without /cmd_vel -> target 0 (0 disables; ros2 topic pub sends at 1 Hz)
+    max_acceleration: float = 1.0  # [m/s^2] and [rad/s^2] toward the commanded velocity
+    max_forward_speed: float = 3.0  # [m/s]
+    max_lateral_speed: float = 1.0  # [m/s]
+    max_yaw_rate: float = 2.0  # [rad/s]
+
+    def validated(self) -> SupervisorConfig:
+        if self.mode not in {m.value for m in Mode}:
+            raise ConfigError(f"mode must be one of {[m.value for m in Mode]}, got {self.mode!r}")
+        require_range("stand_time", self.stand_time, 0.0, 10.0)
+        require_range("input_timeout", self.input_timeout, 0.0, 10.0, low_open=True)
+        require_range("gait_timeout", self.gait_timeout, 0.0, 60.0, low_open=True)
+        require_range("cmd_vel_timeout", self.cmd_vel_timeout, 0.0, 3600.0)
+        require_range("max_acceleration", self.max_acceleration, 0.0, 20.0, low_open=True)
+        require_range("max_forward_speed", self.max_forward_speed, 0.0, 5.0, low_open=True)
+        require_range("max_lateral_speed", self.max_lateral_speed, 0.0, 3.0, low_open=True)
+        require_range("max_yaw_rate", self.max_yaw_rate, 0.0, 6.0, low_open=True)
+        return self
+
+
+@dataclass
+class StepResult:
+    command: JointCommand
+    state: str  # "stand", "walk", "damping", "estop", "safe_stand" (stale velocity estimate)
+    velocity_command: VelocityCommand
+
+
+class ControllerSupervisor:
+    def __init__(self, controller: LocomotionController, config: SupervisorConfig | None = None) -> None:
+        self.controller = controller
+        self.config = (config or SupervisorConfig()).validated()
+        self.requested = Mode(self.config.mode)
+        self.gaits = load_hand_tuned_gaits()
+        self.estopped = False
+        self.rejected_cmd_vel = 0
+        self.rejected_gait_params = 0
+        self.gait_fallbacks = 0
+        self.safe_stand_steps = 0
+        self._target = np.zeros(3)  # vx, vy, yaw rate requested
+        self._command = np.zeros(3)  # after the acceleration limit
+        self._cmd_time = float("-inf")
+        self._gait: GaitParams | None = None
+        self._gait_time = float("-inf")
+        self._in_fallback_gait = False
+        self._velocity_time = float("-inf")
+        self._stand_start: tuple[float, np.ndarray] | None = None  # (time, pose) of the stand ramp
+        self._walking = False
+        self._last_time: float | None = None
+
+    # --- inputs --------------------------------------------------------------------------------
+    def set_mode(self, mode: str) -> None:
+        try:
+            self.requested = Mode(mode)
+        except ValueError:
+            raise ConfigError(f"mode must be one of {[m.value for m in Mode]}, got {mode!r}") from None
+
+    def estop(self) -> None:
+        self.estopped = True
+
+    def clear_estop(self) -> None:
+        if self.estopped:
+            self.estopped = False
+            self._stand_start = None  # stand up again before anything else
+
+    def on_cmd_vel(self, vx: float, vy: float, yaw_rate: float, now: float) -> bool:
+        values = np.array([vx, vy, yaw_rate], dtype=float)
+        if not np.all(np.isfinite(values)):
+            self.rejected_cmd_vel += 1
+            return False
+        cfg = self.config
+        limits = np.array([cfg.max_forward_speed, cfg.max_lateral_speed, cfg.max_yaw_rate])
+        self._target = np.clip(values, -limits, limits)  # documented clamp
+        self._cmd_time = now
+        return True
+
+    def on_gait_params(self, params: GaitParams, now: float) -> bool:
+        try:
+            self._gait = params.validated()
+        except ConfigError:
+            self.rejected_gait_params += 1
+            return False
+        self._gait_time = now
+        return True
+
+    # --- the 500 Hz step -----------------------------------------------------------------------
+    def step(self, now: float, obs: Observation, velocity_fresh: bool) -> StepResult:
+        """Command for this step. ``velocity_fresh``: obs.base_velocity is a current estimate."""
+        dt = 0.0 if self._last_time is None else max(now - self._last_time, 0.0)
+        self._last_time = now
+        if velocity_fresh:
+            self._velocity_time = now
+        velocity_command = self._limited_command(now, dt)
+        if self.estopped or self.requested == Mode.DAMPING:
+            self._stand_start = None
+            self._walking = False
+            return StepResult(JointCommand.damping(), "estop" if self.estopped else "damping", velocity_command)
+        if now - self._velocity_time > self.config.input_timeout:
+            self.safe_stand_steps += 1
+            self._walking = False
+            return StepResult(self._stand(now, obs), "safe_stand", velocity_command)
+        if not self._walking and (self._stand_start is None or self.requested == Mode.STAND
+                                  or now - self._stand_start[0] < self.config.stand_time
+                                  or not self._stood_up(obs)):
+            return StepResult(self._stand(now, obs), "stand", velocity_command)
+        if not self._walking:
+            self.controller.reset()
+            self._walking = True
+        self.controller.set_gait(self._current_gait(now, velocity_command))
+        return StepResult(self.controller.step(obs, velocity_command), "walk", velocity_command)
+
+    def _stood_up(self, obs: Observation) -> bool:
+        """Walking starts only from a real stance: joints near the nominal pose, body level."""
+        robot = self.controller.robot
+        joints_ok = np.max(np.abs(np.asarray(obs.joint_position) - robot.nominal_joint_angles)) < STOOD_UP_JOINT_ERROR
+        x, y = obs.orientation[0], obs.orientation[1]
+        level = 1 - 2 * (x * x + y * y) > np.cos(STOOD_UP_TILT)
+        return bool(joints_ok and level)
+
+    def _stand(self, now: float, obs: Observation) -> JointCommand:
+        q = np.asarray(obs.joint_position, dtype=float)
+        if self._stand_start is None:
+            self._stand_start = (now, q.copy())
+        t0, q0 = self._stand_start
+        robot = self.controller.robot
+        beta = 1.0 if self.config.stand_time == 0 else min((now - t0) / self.config.stand_time, 1.0)
+        return JointCommand.hold(robot, beta * robot.nominal_joint_angles + (1 - beta) * q0)
+
+    def _limited_command(self, now: float, dt: float) -> VelocityCommand:
+        cfg = self.config
+        target = self._target
+        if cfg.cmd_vel_timeout > 0 and now - self._cmd_time > cfg.cmd_vel_timeout:
+            target = np.zeros(3)
+        step = cfg.max_acceleration * dt
+        self._command = self._command + np.clip(target - self._command, -step, step)
+        return VelocityCommand(*self._command)
+
+    def _current_gait(self, now: float, command: VelocityCommand) -> GaitParams:
+        if self._gait is not None and now - self._gait_time <= self.config.gait_timeout:
+            self._in_fallback_gait = False
+            return self._gait
+        if not self._in_fallback_gait:
+            self.gait_fallbacks += 1
+            self._in_fallback_gait = True
+        return gait_for_speed(abs(command.vx), self.gaits)

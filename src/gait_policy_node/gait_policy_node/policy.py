@@ -1,0 +1,52 @@
+"""Gait policies: map the desired and measured base velocity to the paper's gait parameters.
+
+The paper's policy observes [desired velocity, measured velocity] and outputs
+[f, p_swing, theta_2, theta_3, theta_4] at 20 Hz. Until a learned policy file exists (the learning
+issue defines its format), the hand-tuned gaits stand in: one fixed gait by name, or the gaits
+scheduled by commanded speed.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+from a1_common.config import ConfigError
+from convex_mpc_node.gait import GaitParams, gait_for_speed, load_hand_tuned_gaits
+
+
+class GaitPolicy(Protocol):
+    def __call__(self, desired_velocity: np.ndarray, measured_velocity: np.ndarray) -> GaitParams: ...
+
+
+class FixedGait:
+    """Always the same hand-tuned gait."""
+
+    def __init__(self, params: GaitParams) -> None:
+        self.params = params.validated()
+
+    def __call__(self, desired_velocity: np.ndarray, measured_velocity: np.ndarray) -> GaitParams:
+        return self.params
+
+
+class SpeedScheduledGaits:
+    """The hand-tuned gaits chosen by commanded forward speed (walk, slow/rapid trot, fly trot)."""
+
+    def __init__(self, gaits: dict[str, GaitParams]) -> None:
+        self.gaits = gaits
+
+    def __call__(self, desired_velocity: np.ndarray, measured_velocity: np.ndarray) -> GaitParams:
+        return gait_for_speed(float(np.hypot(desired_velocity[0], desired_velocity[1])), self.gaits)
+
+
+def make_policy(spec: str) -> GaitPolicy:
+    """``scheduled`` | a hand-tuned gait name from config/gaits.yaml | a learned policy file."""
+    gaits = load_hand_tuned_gaits()
+    if spec == "scheduled":
+        return SpeedScheduledGaits(gaits)
+    if spec in gaits:
+        return FixedGait(gaits[spec])
+    if spec.endswith(".npz"):
+        raise ConfigError(f"policy '{spec}': learned policy files are not supported yet "
+                          "(they arrive with the learning issue); use 'scheduled' or a gait name")
+    raise ConfigError(f"policy must be 'scheduled', one of {sorted(gaits)}, or a .npz policy file; got {spec!r}")

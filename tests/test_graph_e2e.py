@@ -1,0 +1,171 @@
+"""End-to-end over real processes: the node graph walks on /cmd_vel, fails safe, and shuts down clean.
+
+Every node is its own process (the installed executables), the sim bridge in lockstep so runs are
+deterministic; this test process only publishes /cmd_vel and watches topics.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+from a1_sim_bridge.conversions import ns_from_stamp
+from a1_sim_bridge.node import CONTROL_QOS
+from geometry_msgs.msg import Twist
+from graph_helpers import ROOT, Graph
+from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from ros_helpers import spin_until
+from sensor_msgs.msg import JointState
+
+from gait_msgs.msg import MotorCommand
+
+DAMPING_KD = 2.0  # config/a1_robot.yaml damping_kd
+
+
+class Watcher(Node):
+    """Publishes /cmd_vel at about 20 Hz (wall) and records ground truth, commands and joints."""
+
+    def __init__(self, context) -> None:
+        super().__init__("e2e_watcher", context=context)
+        self.speed: float | None = 0.0  # None: publish nothing
+        self.truth: list[tuple[float, float, float]] = []  # (sim time, v_x body, z)
+        self.commands: list[float] = []  # stamps of /motor_command [s]
+        self.joints: list[tuple[float, np.ndarray, np.ndarray]] = []  # (t, velocity, effort)
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self._pub = self.create_publisher(Twist, "/cmd_vel", reliable)
+        self._last_pub = 0.0
+        self.create_subscription(Odometry, "/sim/ground_truth/odom", self._on_truth, CONTROL_QOS)
+        self.create_subscription(MotorCommand, "/motor_command",
+                                 lambda m: self.commands.append(ns_from_stamp(m.header.stamp) * 1e-9), CONTROL_QOS)
+        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
+
+    def _on_truth(self, m: Odometry) -> None:
+        self.truth.append((ns_from_stamp(m.header.stamp) * 1e-9, m.twist.twist.linear.x, m.pose.pose.position.z))
+        if self.speed is not None and time.monotonic() - self._last_pub > 0.05:
+            msg = Twist()
+            msg.linear.x = self.speed
+            self._pub.publish(msg)
+            self._last_pub = time.monotonic()
+
+    def _on_joints(self, m: JointState) -> None:
+        self.joints.append((ns_from_stamp(m.header.stamp) * 1e-9, np.array(m.velocity), np.array(m.effort)))
+
+    def sim_time(self) -> float:
+        return self.truth[-1][0] if self.truth else 0.0
+
+    def mean_speed(self, start: float, end: float) -> float:
+        return float(np.mean([v for t, v, _ in self.truth if start <= t <= end]))
+
+    def lowest(self) -> float:
+        return min(z for _, _, z in self.truth)
+
+
+@pytest.fixture
+def graph(tmp_path, rclpy_context):
+    g = Graph(tmp_path)
+    watcher = Watcher(rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(watcher)
+    yield g, watcher, executor
+    g.stop()
+    executor.shutdown()
+    watcher.destroy_node()
+
+
+def run_until(executor, watcher, graph_, sim_time: float, wall_timeout: float) -> None:
+    ok = spin_until(executor, lambda: watcher.sim_time() >= sim_time or not all(graph_.alive().values()),
+                    wall_timeout)
+    dead = [name for name, alive in graph_.alive().items() if not alive]
+    assert not dead, f"nodes died: {dead}\n" + "\n".join(graph_.log(n)[-2000:] for n in dead)
+    assert ok, f"sim reached only {watcher.sim_time():.2f} s of {sim_time} s in {wall_timeout} s wall"
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_cmd_vel_1_mps_walks_within_10_percent(graph):
+    g, watcher, executor = graph
+    g.start_stack()
+    watcher.speed = 1.0
+    run_until(executor, watcher, g, 7.0, wall_timeout=240)
+    assert watcher.lowest() > 0.18, "fell"
+    # Stand-up 1 s, then 1 m/s^2 to 1.0 m/s: 5 s into walking is about t = 6..7 s.
+    assert watcher.mean_speed(6.0, 7.0) == pytest.approx(1.0, rel=0.10)
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_paper_acceleration_profile_stays_up(graph):
+    g, watcher, executor = graph
+    g.start_stack()
+    g.start("velocity_command", "gait_policy_node", "velocity_command", "--ros-args", "-p", "use_sim_time:=true",
+            "-p", "profile:=ramp", "-p", "speed:=2.5", "-p", "acceleration:=1.0", "-p", "start_delay:=1.5")
+    watcher.speed = None  # velocity_command drives
+    run_until(executor, watcher, g, 20.0, wall_timeout=480)
+    assert watcher.lowest() > 0.18, "fell"
+    assert watcher.mean_speed(18.0, 20.0) == pytest.approx(2.5, rel=0.15)
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_controller_killed_damps_within_50_ms_then_recovers(graph):
+    g, watcher, executor = graph
+    g.start_stack(lockstep_timeout=0.05)
+    watcher.speed = 1.0
+    run_until(executor, watcher, g, 4.0, wall_timeout=180)
+    g.kill("convex_mpc")
+    killed_at = watcher.sim_time()
+    run_until(executor, watcher, g, killed_at + 0.1, wall_timeout=60)
+    last_command = max(watcher.commands)
+    # Damping signature: the torque applied over a step is -kd * (joint velocity at its start).
+    damping_start = None
+    for (_, dq0, _), (t1, _, tau1) in zip(watcher.joints, watcher.joints[1:], strict=False):
+        if t1 > last_command and np.allclose(tau1, np.clip(-DAMPING_KD * dq0, -33.5, 33.5), atol=1e-6):
+            damping_start = t1
+            break
+    assert damping_start is not None, "the bridge never went to damping"
+    assert damping_start - last_command <= 0.05 + 0.0021  # 50 ms of sim time (+ one step of stamping)
+    g.start_controller()
+    restarted_at = watcher.sim_time()
+    run_until(executor, watcher, g, restarted_at + 6.0, wall_timeout=240)
+    # Damped at 1 m/s the robot may sink or tumble; restarted, it must stand up and walk again.
+    assert max(z for t, _, z in watcher.truth if t > restarted_at + 1.0) > 0.24, "did not stand up"
+    assert watcher.mean_speed(restarted_at + 5.0, restarted_at + 6.0) > 0.8, "did not walk again"
+    assert min(z for t, _, z in watcher.truth if t > restarted_at + 3.0) > 0.18, "fell after restarting"
+
+
+@pytest.mark.ros
+def test_bringup_script_leaves_no_process_after_sigterm(rclpy_context):
+    env = {**os.environ}
+    proc = subprocess.Popen(["bash", str(ROOT / "scripts" / "bringup.sh"), "--clock", "lockstep"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    pids = []
+    deadline = time.monotonic() + 60
+    while len(pids) < 4 and time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if "started" in line and "(pid " in line:
+            pids.append(int(line.split("(pid ")[1].split(",")[0].rstrip(")")))
+    assert len(pids) == 4, f"bring-up did not start 4 nodes: {pids}"
+    listener = Node("bringup_listener", context=rclpy_context)
+    seen = []
+    listener.create_subscription(JointState, "/joint_states", seen.append, CONTROL_QOS)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(listener)
+    try:
+        assert spin_until(executor, lambda: len(seen) > 10, 60.0), "graph never published"
+        os.kill(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=30)
+    finally:
+        executor.shutdown()
+        listener.destroy_node()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    for pid in pids:
+        with pytest.raises(ProcessLookupError):
+            os.killpg(pid, 0)  # the node's whole process group is gone

@@ -1,0 +1,116 @@
+"""Controller supervisor: stand-up, modes, e-stop latch, stale estimate, command shaping, gait fallback."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from a1_common.command import MotorMode
+from a1_common.config import ConfigError
+from a1_common.robot import a1
+from convex_mpc_node.controller import LocomotionController, Observation
+from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
+from convex_mpc_node.supervisor import ControllerSupervisor, SupervisorConfig
+
+ROBOT = a1()
+GAITS = load_hand_tuned_gaits()
+DT = 0.002
+
+
+def standing_obs(q=None) -> Observation:
+    q = ROBOT.nominal_joint_angles.copy() if q is None else q
+    return Observation(q, np.zeros(12), np.array([0, 0, 0, 1.0]), np.zeros(3), np.ones(4, bool), np.zeros(3))
+
+
+def make(**config) -> ControllerSupervisor:
+    return ControllerSupervisor(LocomotionController(GAITS["slow_trot"]), SupervisorConfig(**config))
+
+
+def run(sup: ControllerSupervisor, start: float, seconds: float, fresh: bool = True, obs=None):
+    result = None
+    for k in range(round(seconds / DT)):
+        result = sup.step(start + k * DT, obs or standing_obs(), velocity_fresh=fresh)
+    return result
+
+
+def test_stands_up_then_walks():
+    sup = make(stand_time=0.5)
+    crouched = ROBOT.nominal_joint_angles + np.tile([0.0, 0.5, -0.5], 4)
+    first = sup.step(0.0, standing_obs(crouched), True)
+    assert first.state == "stand"
+    np.testing.assert_allclose(first.command.position, crouched)  # the ramp starts where the legs are
+    assert run(sup, DT, 0.4).state == "stand"
+    assert run(sup, 0.5, 0.1).state == "walk"
+
+
+def test_walk_waits_until_actually_stood_up():
+    sup = make(stand_time=0.1)
+    lying = ROBOT.nominal_joint_angles + np.tile([0.0, 0.6, 0.6], 4)  # legs far from the stance
+    assert run(sup, 0.0, 1.0, obs=standing_obs(lying)).state == "stand"
+
+
+def test_estop_latches_damping_until_cleared():
+    sup = make(stand_time=0.0)
+    run(sup, 0.0, 0.1)
+    sup.estop()
+    result = run(sup, 0.1, 0.5)
+    assert result.state == "estop" and result.command.mode == MotorMode.DAMPING
+    sup.set_mode("walk")  # a mode change does not clear the e-stop
+    assert run(sup, 0.6, 0.1).state == "estop"
+    sup.clear_estop()
+    assert run(sup, 0.7, 0.002).state == "stand"  # stands up again first
+
+
+def test_damping_mode_and_bad_mode_name():
+    sup = make()
+    sup.set_mode("damping")
+    assert run(sup, 0.0, 0.01).command.mode == MotorMode.DAMPING
+    with pytest.raises(ConfigError, match="mode must be one of"):
+        sup.set_mode("sprint")
+
+
+def test_stale_estimate_holds_a_safe_stance_and_recovers():
+    sup = make(stand_time=0.1, input_timeout=0.05)
+    assert run(sup, 0.0, 0.3).state == "walk"
+    stale = run(sup, 0.3, 0.2, fresh=False)
+    assert stale.state == "safe_stand" and stale.command.mode == MotorMode.HYBRID
+    assert np.all(stale.command.kp > 0)  # joint PD: a stance, not a collapse
+    assert sup.safe_stand_steps > 0
+    assert run(sup, 0.5, 0.05).state == "walk"
+
+
+def test_cmd_vel_validation_clamp_and_acceleration_limit():
+    sup = make(stand_time=0.0, max_acceleration=1.0, max_forward_speed=3.0, cmd_vel_timeout=0.0)
+    assert not sup.on_cmd_vel(math.nan, 0.0, 0.0, now=0.0)
+    assert sup.rejected_cmd_vel == 1
+    assert sup.on_cmd_vel(10.0, 0.0, 0.0, now=0.0)  # clamped to 3 m/s
+    result = run(sup, 0.0, 0.5)
+    assert result.velocity_command.vx == pytest.approx(0.5, abs=0.01)  # 1 m/s^2 for 0.5 s
+    result = run(sup, 0.5, 3.0)
+    assert result.velocity_command.vx == pytest.approx(3.0)
+
+
+def test_cmd_vel_timeout_brings_the_target_to_zero():
+    sup = make(stand_time=0.0, cmd_vel_timeout=0.5, max_acceleration=10.0)
+    sup.on_cmd_vel(1.0, 0.0, 0.0, now=0.0)
+    assert run(sup, 0.0, 0.4).velocity_command.vx == pytest.approx(1.0)
+    assert run(sup, 0.4, 0.4).velocity_command.vx == pytest.approx(0.0)
+
+
+def test_gait_params_rejected_or_timed_out_fall_back_to_hand_tuned():
+    sup = make(stand_time=0.0, gait_timeout=0.2)
+    assert not sup.on_gait_params(GaitParams(9.0, 0.5, (0, math.pi, math.pi, 0)), now=0.0)
+    assert sup.rejected_gait_params == 1
+    custom = GaitParams(3.0, 0.4, (0.0, math.pi, math.pi, 0.0))
+    assert sup.on_gait_params(custom, now=0.0)
+    run(sup, 0.0, 0.1)
+    assert sup.controller.gait.params == custom
+    run(sup, 0.1, 0.3)  # no new parameters for longer than gait_timeout
+    assert sup.gait_fallbacks == 1
+    assert sup.controller.gait.params == GAITS["walk"]  # commanded 0 m/s -> walk
+
+
+def test_supervisor_config_errors():
+    with pytest.raises(ConfigError, match="input_timeout"):
+        SupervisorConfig(input_timeout=0.0).validated()
