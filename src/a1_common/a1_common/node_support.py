@@ -78,6 +78,10 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:  # rclpy's RCLError derives from it
+        if rclpy.ok():
+            raise
+        # Ctrl-C / SIGTERM shut the context down under a running spin: a normal stop.
     except ConfigError as exc:
         print(f"{name}: configuration error: {exc}", file=sys.stderr)
         raise SystemExit(2) from None

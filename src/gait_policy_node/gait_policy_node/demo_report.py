@@ -92,7 +92,7 @@ class DemoReportNode(Node):
         print(f"\n=== demo summary: {t[-1]:.1f} s of sim time ===")
         print(f"distance {np.hypot(x[-1] - x[0], y[-1] - y[0]):.2f} m, mean speed {np.mean(v):.2f} m/s, "
               f"lowest base height {np.min(z):.3f} m ({'FELL' if np.min(z) < 0.18 else 'no fall'}), "
-              f"controller missed deadlines: {self.missed}")
+              f"controller steps over their 2 ms budget: {self.missed}")
         print(f"{'band [m/s]':<12}{'cmd':>6}{'actual':>8}{'err %':>7}  {'gait':<9}{'f Hz':>6}{'p_sw':>6}"
               f"{'power W':>9}{'CoT':>6}")
         moving = np.cumsum(cmd > 0) > 0  # from the first non-zero command on (skips the stand-up)
