@@ -20,12 +20,13 @@ while [ $# -gt 0 ]; do
     *) echo "bringup.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
-case "$WORLD" in flat|step|rough|soft|slope) ;; *) echo "bringup.sh: --world must be flat|step|rough|soft|slope, got '$WORLD'" >&2; exit 2 ;; esac
-case "$CLOCK" in lockstep|realtime) ;; *) echo "bringup.sh: --clock must be lockstep|realtime, got '$CLOCK'" >&2; exit 2 ;; esac
-# shellcheck disable=SC1091
-source "$ROOT/scripts/env.sh"
 # shellcheck disable=SC1091
 source "$ROOT/scripts/lib/nodes.sh"
+check_choice bringup.sh --world "$WORLD" flat step rough soft slope
+check_choice bringup.sh --clock "$CLOCK" lockstep realtime
+check_choice bringup.sh --policy "$POLICY" scheduled walk slow_trot rapid_trot fly_trot
+# shellcheck disable=SC1091
+source "$ROOT/scripts/env.sh"
 LOGDIR="$ROOT/log/bringup/$(date +%Y%m%d-%H%M%S)"
 mkdir -p "$LOGDIR"
 trap stop_nodes EXIT

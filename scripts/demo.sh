@@ -23,16 +23,17 @@ while [ $# -gt 0 ]; do
     *) echo "demo.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
-case "$WORLD" in flat|step|rough|soft|slope) ;; *) echo "demo.sh: --world must be flat|step|rough|soft|slope, got '$WORLD'" >&2; exit 2 ;; esac
-case "$CLOCK" in lockstep|realtime) ;; *) echo "demo.sh: --clock must be lockstep|realtime, got '$CLOCK'" >&2; exit 2 ;; esac
+# shellcheck disable=SC1091
+source "$ROOT/scripts/lib/nodes.sh"
+check_choice demo.sh --world "$WORLD" flat step rough soft slope
+check_choice demo.sh --clock "$CLOCK" lockstep realtime
+check_choice demo.sh --policy "$POLICY" scheduled walk slow_trot rapid_trot fly_trot
 [[ "$DURATION" =~ ^[0-9]+([.][0-9]+)?$ ]] && awk "BEGIN{exit !($DURATION > 0 && $DURATION <= 3600)}" \
   || { echo "demo.sh: --duration must be a number of seconds in (0, 3600], got '$DURATION'" >&2; exit 2; }
 
 "$ROOT/scripts/setup.sh"
 # shellcheck disable=SC1091
 source "$ROOT/scripts/env.sh"
-# shellcheck disable=SC1091
-source "$ROOT/scripts/lib/nodes.sh"
 
 LOGDIR="$ROOT/log/demo"
 mkdir -p "$LOGDIR"

@@ -4,6 +4,14 @@
 
 _GS_PIDS=()
 
+check_choice() {  # <script> <option> <value> <allowed...>: exit 2 naming the option unless value is allowed
+  local script=$1 option=$2 value=$3; shift 3
+  local allowed
+  for allowed in "$@"; do [ "$value" = "$allowed" ] && return 0; done
+  echo "$script: $option must be one of: $*; got '$value'" >&2
+  exit 2
+}
+
 _node_command() {  # <pkg> <exe>: set the array _GS_CMD to the command that runs a node
   local pkg=$1 exe=$2
   if command -v ros2 >/dev/null 2>&1; then
