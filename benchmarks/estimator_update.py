@@ -9,12 +9,14 @@ Usage: source scripts/env.sh && python benchmarks/estimator_update.py [--samples
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
 import numpy as np
 from a1_common.command import JointCommand
 from a1_sim_bridge.sim import A1Sim
+from gait_policy_node.rollout import sample_from_readings
 from state_estimator_node.estimator import SensorSample, VelocityEstimator
 
 
@@ -24,9 +26,7 @@ def samples_from_sim(count: int) -> list[SensorSample]:
         out = []
         for _ in range(count):
             r = sim.step(hold)
-            out.append(SensorSample(r.time, r.joint_position, r.joint_velocity, r.imu_orientation,
-                                    r.imu_angular_velocity, r.imu_linear_acceleration, r.foot_contact,
-                                    r.foot_force))
+            out.append(sample_from_readings(r))
         return out
 
 
@@ -47,9 +47,7 @@ def main() -> None:
     if not 100 <= args.samples <= 1_000_000:
         parser.error("--samples must be in [100, 1000000]")
     standing = samples_from_sim(args.samples)
-    trot = [SensorSample(s.time, s.joint_position, s.joint_velocity, s.orientation, s.angular_velocity,
-                         s.linear_acceleration, np.array([True, False, False, True]), s.foot_force)
-            for s in standing]
+    trot = [dataclasses.replace(s, foot_contact=np.array([True, False, False, True])) for s in standing]
     rows = {"four feet in contact": time_updates(standing), "two feet in contact": time_updates(trot)}
     print(f"{'case':<24}{'median ms':>10}{'p99 ms':>10}")
     for name, costs in rows.items():

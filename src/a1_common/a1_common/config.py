@@ -8,6 +8,7 @@ library cores (tests, trainer) read with :func:`load_node_parameters`. Both are 
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 from typing import Any
@@ -46,6 +47,20 @@ def load_node_parameters(path: str | os.PathLike, node_name: str) -> dict[str, A
     if not isinstance(section, dict) or not isinstance(section.get("ros__parameters"), dict):
         raise ConfigError(f"{path}: no '{node_name}: ros__parameters:' mapping")
     return dict(section["ros__parameters"])
+
+
+def parameter_defaults(config: Any, prefix: str = "", skip: tuple[str, ...] = ()) -> dict[str, Any]:
+    """A config dataclass instance as flat ROS parameter defaults: ``prefix + field`` -> value.
+
+    Tuples become lists (ROS array parameters); nested dataclass fields and ``skip`` are left out.
+    """
+    flat = {}
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if f.name in skip or dataclasses.is_dataclass(value):
+            continue
+        flat[prefix + f.name] = list(value) if isinstance(value, tuple) else value
+    return flat
 
 
 def config_dir() -> Path:

@@ -18,7 +18,7 @@ import traceback
 
 import rclpy
 from a1_common.command import CommandWatchdog
-from a1_common.config import ConfigError, require_range
+from a1_common.config import ConfigError, parameter_defaults, require_range
 from a1_common.node_support import coerce_parameter, declare_parameters, run_node
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
@@ -262,9 +262,7 @@ class SimBridgeNode(Node):
 
 def _sim_defaults(config: SimConfig) -> dict:
     """SimConfig as the flat parameter mapping the node declares (noise fields inlined)."""
-    flat = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name != "noise"}
-    flat.update(dataclasses.asdict(config.noise))
-    return flat
+    return {**parameter_defaults(config), **parameter_defaults(config.noise)}
 
 
 def main(args: list[str] | None = None) -> None:

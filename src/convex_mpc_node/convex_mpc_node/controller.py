@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from a1_common.command import JointCommand
-from a1_common.config import ConfigError, config_dir, load_node_parameters
+from a1_common.config import ConfigError, config_dir, load_node_parameters, parameter_defaults
 from a1_common.kinematics import foot_positions, inverse_kinematics, leg_jacobians, quat_to_matrix
 from a1_common.robot import NUM_LEGS, A1Constants, a1
 
@@ -42,14 +42,8 @@ class ControllerConfig:
 
 def controller_parameter_defaults() -> dict:
     """ControllerConfig as flat parameters (``mpc_<field>`` for MpcConfig fields), lists for tuples."""
-    flat = {}
     defaults = ControllerConfig()
-    for f in dataclasses.fields(ControllerConfig):
-        if f.name != "mpc":
-            flat[f.name] = getattr(defaults, f.name)
-    for f in dataclasses.fields(MpcConfig):
-        flat["mpc_" + f.name] = getattr(defaults.mpc, f.name)
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in flat.items()}
+    return {**parameter_defaults(defaults), **parameter_defaults(defaults.mpc, prefix="mpc_")}
 
 
 def controller_config_from_parameters(params: dict, source: str = "parameters") -> ControllerConfig:

@@ -199,7 +199,11 @@ class ConvexMpc:
         # OSQP factorises small.
         rng = np.random.default_rng(0)
         generic = MpcState(0.1, -0.1, 0.3, rng.normal(size=3), rng.normal(size=3), rng.normal(size=(4, 3)))
-        self.a_d, b_generic = discretize(*continuous_dynamics(cfg, generic), cfg.step)
+        a_cont, b_generic_cont = continuous_dynamics(cfg, generic)
+        self.a_d, b_generic = discretize(a_cont, b_generic_cont, cfg.step)
+        # A is constant, so B_d = (I dt + A dt^2/2 + A^2 dt^3/6) B: the factor is computed once here.
+        dt = cfg.step
+        self._b_factor = np.eye(NX) * dt + a_cont * dt**2 / 2 + a_cont @ a_cont * dt**3 / 6
         a_mask = self.a_d != 0
         self._b_mask = b_generic != 0
         a_r, a_c = np.nonzero(a_mask)
@@ -262,8 +266,8 @@ class ConvexMpc:
         plan = np.asarray(contact_plan, dtype=bool)
         if plan.shape != (h, NUM_LEGS):
             raise ValueError(f"contact_plan must have shape ({h}, {NUM_LEGS}), got {plan.shape}")
-        a, b = continuous_dynamics(cfg, state)
-        a_d, b_d = discretize(a, b, cfg.step)
+        _, b = continuous_dynamics(cfg, state)
+        a_d, b_d = self.a_d, self._b_factor @ b
         values = self._a_values
         values[self._b_positions] = -b_d[self._b_mask][None, :]
         x0 = initial_state(cfg, state)

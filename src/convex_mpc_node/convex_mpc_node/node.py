@@ -14,12 +14,11 @@ Inputs: /cmd_vel (geometry_msgs/Twist, or TwistStamped with ``cmd_vel_stamped``)
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections import deque
 
 import numpy as np
-from a1_common.config import ConfigError
+from a1_common.config import ConfigError, parameter_defaults
 from a1_common.kinematics import quat_to_matrix
 from a1_common.node_support import coerce_parameter, declare_parameters, run_node
 from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp
@@ -51,7 +50,7 @@ NODE_PARAMETERS = {"cmd_vel_stamped": False, "mass_for_cot": 12.458}
 
 
 def _supervisor_defaults() -> dict:
-    return {f.name: f.default for f in dataclasses.fields(SupervisorConfig)}
+    return parameter_defaults(SupervisorConfig())
 
 
 class ConvexMpcNode(Node):

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from a1_common.kinematics import quat_to_matrix
-from a1_sim_bridge.sim import A1Sim, SimConfig
+from a1_sim_bridge.sim import A1Sim, SensorReadings, SimConfig
 from convex_mpc_node.controller import ControllerConfig, LocomotionController, Observation, VelocityCommand
 from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import GaitParams
@@ -67,6 +67,12 @@ class Trajectory:
         return np.mean(np.asarray(self.velocity)[sel], axis=0)
 
 
+def sample_from_readings(r: SensorReadings) -> SensorSample:
+    """The estimator's input from the simulator's sensor readings (same fields, same units)."""
+    return SensorSample(r.time, r.joint_position, r.joint_velocity, r.imu_orientation, r.imu_angular_velocity,
+                        r.imu_linear_acceleration, r.foot_contact, r.foot_force)
+
+
 def tilted_or_low(position: np.ndarray, orientation: np.ndarray) -> bool:
     x, y = orientation[0], orientation[1]
     up_z = 1 - 2 * (x * x + y * y)  # world z of the body z axis
@@ -104,9 +110,7 @@ def run_closed_loop(schedule: GaitSchedule, profile: SpeedProfile, duration: flo
             r = sim.sensors()
             truth = sim.ground_truth()
             t_est = time.perf_counter()
-            estimate = estimator.update(SensorSample(
-                r.time, r.joint_position, r.joint_velocity, r.imu_orientation, r.imu_angular_velocity,
-                r.imu_linear_acceleration, r.foot_contact, r.foot_force))
+            estimate = estimator.update(sample_from_readings(r))
             traj.estimator_time.append(time.perf_counter() - t_est)
             use_estimate = velocity_source == "estimator"
             velocity = estimate.velocity_world if use_estimate else truth.base_linear_velocity

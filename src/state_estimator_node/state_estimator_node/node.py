@@ -9,10 +9,10 @@ Times are the messages' stamps (sim time from a sim bridge, wall time from a har
 
 from __future__ import annotations
 
-import dataclasses
 import time
 
 import numpy as np
+from a1_common.config import parameter_defaults
 from a1_common.node_support import declare_parameters, run_node
 from a1_sim_bridge.conversions import BASE_FRAME, ODOM_FRAME, ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
@@ -29,18 +29,10 @@ MAX_SENSOR_SKEW = 0.01
 GYRO_VARIANCE = 1e-4  # [(rad/s)^2] reported for the angular part of the twist
 
 
-def _defaults() -> dict:
-    flat = {}
-    for f in dataclasses.fields(EstimatorConfig):
-        value = f.default
-        flat[f.name] = list(value) if isinstance(value, tuple) else value
-    return flat
-
-
 class StateEstimatorNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("state_estimator", **node_kwargs)
-        params = declare_parameters(self, _defaults())
+        params = declare_parameters(self, parameter_defaults(EstimatorConfig()))
         for key in ("process_noise", "measurement_noise"):
             params[key] = tuple(float(v) for v in params[key])
         self.estimator = VelocityEstimator(EstimatorConfig(**params).validated())
