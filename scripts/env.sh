@@ -14,6 +14,8 @@ _gs_nounset=$(set +o | grep nounset); set +u
 source "$_gs_root/install/setup.bash"
 eval "$_gs_nounset"
 export GAIT_STACK_ROOT="$_gs_root"
+# The offline tools (train_es, eval_policy, sweep_gaits, velocity_command) by name, as without ROS.
+export PATH="$_gs_root/install/gait_policy_node/lib/gait_policy_node:$PATH"
 unset _gs_root _gs_nounset
 # Keep DDS discovery on this host unless the user chose otherwise (the robot's network is
 # configured explicitly when a hardware bridge runs).

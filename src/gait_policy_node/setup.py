@@ -18,6 +18,9 @@ setup(
             "gait_policy = gait_policy_node.policy_node:main",
             "velocity_command = gait_policy_node.velocity_command:main",
             "demo_report = gait_policy_node.demo_report:main",
+            "train_es = gait_policy_node.train_es:main",
+            "eval_policy = gait_policy_node.eval_policy:main",
+            "sweep_gaits = gait_policy_node.sweep_gaits:main",
         ]
     },
 )

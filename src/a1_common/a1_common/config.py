@@ -84,3 +84,48 @@ def require_range(name: str, value: float, low: float, high: float, *, low_open:
         hb = ")" if high_open else "]"
         raise ConfigError(f"{name} must be in {lb}{low}, {high}{hb}, got {value!r}")
     return v
+
+
+def _kind(value: Any) -> str:
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, (int, float)):
+        return "a number"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, (list, tuple)):
+        return "a list"
+    return type(value).__name__
+
+
+def dataclass_from_mapping(cls: type, data: Any, where: str) -> Any:
+    """Build the (nested) config dataclass ``cls`` from a mapping such as a YAML section.
+
+    Fields missing from ``data`` keep their defaults; unknown keys and values of the wrong kind
+    (number, string, boolean, list) raise ConfigError naming ``where.key``. Lists become tuples
+    (nested ones too), so configs compare and hash like their defaults.
+    Value ranges are the dataclass's own business (its ``validated()``).
+    """
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where} must be a mapping, got {type(data).__name__}")
+    template = cls()
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        raise ConfigError(f"{where}: unknown keys {unknown}; allowed: {names}")
+    kwargs = {}
+    for key, value in data.items():
+        default = getattr(template, key)
+        name = f"{where}.{key}" if where else key
+        if dataclasses.is_dataclass(default):
+            kwargs[key] = dataclass_from_mapping(type(default), value, name)
+            continue
+        expected, got = _kind(default), _kind(value)
+        if default is not None and expected != got and not (expected == "a number" and got == "a number"):
+            raise ConfigError(f"{name} must be {expected}, got {value!r}")
+        kwargs[key] = _tuples(value)
+    return cls(**kwargs)
+
+
+def _tuples(value: Any) -> Any:
+    return tuple(_tuples(v) for v in value) if isinstance(value, (list, tuple)) else value

@@ -82,49 +82,87 @@ def tilted_or_low(position: np.ndarray, orientation: np.ndarray) -> bool:
 VELOCITY_SOURCES = ("estimator", "ground_truth")
 
 
+class ClosedLoop:
+    """One simulated A1 with its estimator and controller, stepped together every 2 ms.
+
+    ``velocity_source``: "estimator" (the Kalman filter on the sensors, as on the robot) or
+    "ground_truth" (the simulator's, for isolating the controller). A fresh controller and
+    estimator are built each time, so a loop never inherits solver warm starts or filter state
+    from an earlier episode; ``sim`` may be an existing simulator (already reset) to reuse its
+    PyBullet connection.
+    """
+
+    def __init__(self, gait: GaitParams, *, sim_config: SimConfig | None = None, sim: A1Sim | None = None,
+                 controller_config: ControllerConfig | None = None,
+                 estimator_config: EstimatorConfig | None = None, velocity_source: str = "estimator") -> None:
+        if velocity_source not in VELOCITY_SOURCES:
+            raise ValueError(f"velocity_source must be one of {VELOCITY_SOURCES}, got {velocity_source!r}")
+        self.sim = sim if sim is not None else A1Sim(sim_config or SimConfig())
+        self.controller = LocomotionController(gait, controller_config)
+        self.estimator = VelocityEstimator(estimator_config)
+        self.use_estimate = velocity_source == "estimator"
+        self.readings = self.sim.sensors()
+        self.truth = self.sim.ground_truth()
+        self.estimated_velocity = np.zeros(3)  # world [m/s], what the last estimator update gave
+        self.step_times = (0.0, 0.0, 0.0)  # [s] wall: estimator, controller, physics of the last step
+
+    def step(self, command: VelocityCommand) -> None:
+        """Estimate, control and simulate one control period; readings and truth are then current."""
+        r = self.readings
+        t0 = time.perf_counter()
+        estimate = self.estimator.update(sample_from_readings(r))
+        t1 = time.perf_counter()
+        self.estimated_velocity = estimate.velocity_world
+        velocity = estimate.velocity_world if self.use_estimate else self.truth.base_linear_velocity
+        obs = Observation(r.joint_position, r.joint_velocity, r.imu_orientation, r.imu_angular_velocity,
+                          r.foot_contact, velocity)
+        joint_command = self.controller.step(obs, command)
+        t2 = time.perf_counter()
+        self.readings = self.sim.step(joint_command)
+        t3 = time.perf_counter()
+        self.truth = self.sim.ground_truth()
+        self.step_times = (t1 - t0, t2 - t1, t3 - t2)
+
+    @property
+    def fallen(self) -> bool:
+        return tilted_or_low(self.truth.base_position, self.truth.base_orientation)
+
+    def forward_velocity(self) -> float:
+        """True base velocity along the robot's heading (yaw-aligned x) [m/s]."""
+        return float(heading_frame(self.truth.base_orientation).T[0] @ self.truth.base_linear_velocity)
+
+
+def heading_frame(orientation: np.ndarray) -> np.ndarray:
+    """Rotation yaw-aligned frame -> world for a base orientation quaternion (x, y, z, w)."""
+    rot = quat_to_matrix(orientation)
+    yaw = np.arctan2(rot[1, 0], rot[0, 0])
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def run_closed_loop(schedule: GaitSchedule, profile: SpeedProfile, duration: float, *,
                     sim_config: SimConfig | None = None,
                     controller_config: ControllerConfig | None = None,
                     velocity_source: str = "estimator",
                     estimator_config: EstimatorConfig | None = None) -> Trajectory:
-    """Run ``duration`` seconds; stop early at a fall.
-
-    ``velocity_source``: "estimator" (the Kalman filter on the sensors, as on the robot) or
-    "ground_truth" (the simulator's, for isolating the controller).
-    """
-    if velocity_source not in VELOCITY_SOURCES:
-        raise ValueError(f"velocity_source must be one of {VELOCITY_SOURCES}, got {velocity_source!r}")
-    sim = A1Sim(sim_config or SimConfig())
+    """Run ``duration`` seconds with the gait from ``schedule`` (re-evaluated at 20 Hz); stop at a fall."""
+    loop = ClosedLoop(schedule(0.0, profile(0.0)), sim_config=sim_config, controller_config=controller_config,
+                      estimator_config=estimator_config, velocity_source=velocity_source)
     try:
-        command = profile(0.0)
-        controller = LocomotionController(schedule(0.0, command), controller_config)
-        estimator = VelocityEstimator(estimator_config)
-        dt = sim.config.time_step
+        dt = loop.sim.config.time_step
         steps_per_policy = round(POLICY_PERIOD / dt)
         traj = Trajectory()
         for k in range(round(duration / dt)):
             t = k * dt
             command = profile(t)
             if k % steps_per_policy == 0:
-                controller.set_gait(schedule(t, command))
-            r = sim.sensors()
-            truth = sim.ground_truth()
-            t_est = time.perf_counter()
-            estimate = estimator.update(sample_from_readings(r))
-            traj.estimator_time.append(time.perf_counter() - t_est)
-            use_estimate = velocity_source == "estimator"
-            velocity = estimate.velocity_world if use_estimate else truth.base_linear_velocity
-            traj.estimated_velocity.append(estimate.velocity_world)
-            traj.true_velocity.append(truth.base_linear_velocity)
-            obs = Observation(r.joint_position, r.joint_velocity, r.imu_orientation, r.imu_angular_velocity,
-                              r.foot_contact, velocity)
-            t0 = time.perf_counter()
-            joint_command = controller.step(obs, command)
-            t1 = time.perf_counter()
-            r = sim.step(joint_command)
-            t2 = time.perf_counter()
-            truth = sim.ground_truth()
-            traj.time.append(sim.time)
+                loop.controller.set_gait(schedule(t, command))
+            true_before = loop.truth.base_linear_velocity
+            loop.step(command)
+            r, truth = loop.readings, loop.truth
+            traj.estimated_velocity.append(loop.estimated_velocity)
+            traj.true_velocity.append(true_before)
+            traj.time.append(truth.time)
             traj.position.append(truth.base_position)
             traj.velocity.append(truth.base_linear_velocity)
             omega_world = quat_to_matrix(truth.base_orientation) @ truth.base_angular_velocity_body
@@ -132,14 +170,15 @@ def run_closed_loop(schedule: GaitSchedule, profile: SpeedProfile, duration: flo
             traj.command.append(command)
             traj.power.append(float(motor_power(r.joint_torque, r.joint_velocity).sum()))
             traj.contacts.append(r.foot_contact)
-            traj.controller_time.append(t1 - t0)
-            traj.physics_time.append(t2 - t1)
-            traj.qp_build_time.append(controller.last_solution.build_time)
-            traj.qp_solve_time.append(controller.last_solution.solve_time)
-            if tilted_or_low(truth.base_position, truth.base_orientation):
-                traj.fell, traj.fall_time = True, sim.time
+            traj.estimator_time.append(loop.step_times[0])
+            traj.controller_time.append(loop.step_times[1])
+            traj.physics_time.append(loop.step_times[2])
+            traj.qp_build_time.append(loop.controller.last_solution.build_time)
+            traj.qp_solve_time.append(loop.controller.last_solution.solve_time)
+            if loop.fallen:
+                traj.fell, traj.fall_time = True, truth.time
                 break
-        traj.mpc_fallbacks = controller.mpc_fallbacks
+        traj.mpc_fallbacks = loop.controller.mpc_fallbacks
         return traj
     finally:
-        sim.close()
+        loop.sim.close()

@@ -1,0 +1,209 @@
+"""Learned gait policies: a numpy network from observation to the paper's gait parameters, and its file.
+
+Network (paper, appendix C): normalised observation -> one hidden layer of tanh units -> 8
+outputs -> tanh; or a linear map -> tanh. Flat parameter layout (what the trainers search over):
+mlp = W1 (hidden x obs, row-major), b1, W2 (8 x hidden), b2; linear = W (8 x obs), b. The 8
+outputs decode into [f, p_swing, theta_FL, theta_RR, theta_RL] as train_config.ActionConfig says.
+
+File: ``.npz`` read with ``allow_pickle=False``. Keys: format_version, kind, observation,
+hidden_units, params, obs_mean, obs_std, frequency_range, swing_ratio_range, offset_prior,
+offset_prior_weight, config_json (the whole training config), config_hash (train_config's
+policy_hash of it), iteration. Anything missing, mis-shaped, non-finite or inconsistent is
+refused with a ConfigError naming the key. The same file is what gait_policy_node loads.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+from a1_common.config import ConfigError
+from convex_mpc_node.gait import TWO_PI, GaitParams
+
+from gait_policy_node.env import OBSERVATION_SIZES
+from gait_policy_node.train_config import ActionConfig, TrainConfig, train_config_from_mapping
+
+ACTION_SIZE = 8  # f, 3 x sin, 3 x cos, p_swing
+FORMAT_VERSION = 1
+
+
+def decode_action(a: np.ndarray, cfg: ActionConfig) -> GaitParams:
+    """Network outputs a in [-1, 1]^8 -> gait parameters (see ActionConfig)."""
+    a = np.clip(np.asarray(a, dtype=float), -1.0, 1.0)
+    f_lo, f_hi = cfg.frequency_range
+    p_lo, p_hi = cfg.swing_ratio_range
+    f = f_lo + 0.5 * (a[0] + 1.0) * (f_hi - f_lo)
+    p = p_lo + 0.5 * (a[7] + 1.0) * (p_hi - p_lo)
+    prior = np.asarray(cfg.offset_prior, dtype=float)
+    b = cfg.offset_prior_weight
+    theta = np.arctan2(b * np.sin(prior) + a[1:4], b * np.cos(prior) + a[4:7]) % TWO_PI
+    theta = np.where(theta >= TWO_PI, 0.0, theta)  # -0.0 % 2pi can round up to 2pi
+    return GaitParams(float(f), float(p), (0.0, *(float(t) for t in theta)))
+
+
+def default_normalisation(observation: str) -> tuple[np.ndarray, np.ndarray]:
+    """Observation mean and scale: velocities are O(1) m/s already; joint angles centre on the
+    nominal pose (0, 0.9, -1.8) rad of each leg."""
+    size = OBSERVATION_SIZES[observation]
+    mean, std = np.zeros(size), np.ones(size)
+    if observation == "extended":
+        mean[9:21] = np.tile([0.0, 0.9, -1.8], 4)
+        std[9:21] = 0.5
+    return mean, std
+
+
+class NetworkPolicy:
+    """Observation -> GaitParams through the network; ``params`` is the flat vector trainers search."""
+
+    def __init__(self, kind: str, observation: str, hidden_units: int, action: ActionConfig,
+                 params: np.ndarray | None = None, obs_mean: np.ndarray | None = None,
+                 obs_std: np.ndarray | None = None) -> None:
+        self.kind, self.observation, self.hidden_units, self.action = kind, observation, hidden_units, action
+        self.obs_size = OBSERVATION_SIZES[observation]
+        default_mean, default_std = default_normalisation(observation)
+        self.obs_mean = default_mean if obs_mean is None else np.asarray(obs_mean, dtype=float)
+        self.obs_std = default_std if obs_std is None else np.asarray(obs_std, dtype=float)
+        self.set_params(np.zeros(self.num_params) if params is None else params)
+
+    @classmethod
+    def from_config(cls, config: TrainConfig, params: np.ndarray | None = None) -> NetworkPolicy:
+        p = config.policy
+        return cls(p.kind, config.env.observation, p.hidden_units, p.action, params)
+
+    @property
+    def num_params(self) -> int:
+        if self.kind == "linear":
+            return ACTION_SIZE * (self.obs_size + 1)
+        return self.hidden_units * (self.obs_size + 1) + ACTION_SIZE * (self.hidden_units + 1)
+
+    def set_params(self, params: np.ndarray) -> None:
+        params = np.asarray(params, dtype=float).reshape(-1)
+        if params.size != self.num_params:
+            raise ConfigError(f"params must have {self.num_params} entries for a {self.kind} policy "
+                              f"({self.observation} observation, {self.hidden_units} hidden), got {params.size}")
+        if not np.all(np.isfinite(params)):
+            raise ConfigError("params must be finite")
+        self.params = params.copy()
+        o, h = self.obs_size, self.hidden_units
+        if self.kind == "linear":
+            self._layers = [(params[: ACTION_SIZE * o].reshape(ACTION_SIZE, o), params[ACTION_SIZE * o:])]
+        else:
+            w1_end = h * o
+            b1_end = w1_end + h
+            w2_end = b1_end + ACTION_SIZE * h
+            self._layers = [(params[:w1_end].reshape(h, o), params[w1_end:b1_end]),
+                            (params[b1_end:w2_end].reshape(ACTION_SIZE, h), params[w2_end:])]
+
+    def raw_action(self, observation: np.ndarray) -> np.ndarray:
+        """The 8 network outputs in (-1, 1) for one observation."""
+        x = (np.asarray(observation, dtype=float) - self.obs_mean) / self.obs_std
+        for w, b in self._layers:
+            x = np.tanh(w @ x + b)
+        return x
+
+    def __call__(self, observation: np.ndarray) -> GaitParams:
+        return decode_action(self.raw_action(observation), self.action)
+
+
+def save_policy(path: str | os.PathLike, policy: NetworkPolicy, config: TrainConfig, iteration: int = 0) -> None:
+    """Write the policy file atomically (temporary file in the same folder, then rename)."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise ConfigError(f"policy file name must end in .npz, got {path}")
+    action = policy.action
+    arrays = {
+        "format_version": np.array(FORMAT_VERSION), "kind": np.array(policy.kind),
+        "observation": np.array(policy.observation), "hidden_units": np.array(policy.hidden_units),
+        "params": policy.params, "obs_mean": policy.obs_mean, "obs_std": policy.obs_std,
+        "frequency_range": np.array(action.frequency_range, dtype=float),
+        "swing_ratio_range": np.array(action.swing_ratio_range, dtype=float),
+        "offset_prior": np.array(action.offset_prior, dtype=float),
+        "offset_prior_weight": np.array(action.offset_prior_weight, dtype=float),
+        "config_json": np.array(json.dumps(config.to_dict(), sort_keys=True)),
+        "config_hash": np.array(config.policy_hash()), "iteration": np.array(iteration),
+    }
+    write_npz_atomically(path, arrays)
+
+
+def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """np.savez into ``path`` so that a crash at any moment leaves the old file or the new one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def read_npz(path: str | os.PathLike, what: str = "file") -> dict[str, np.ndarray]:
+    """All arrays of an ``.npz`` without pickle; unreadable, truncated or pickled files -> ConfigError."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {key: data[key] for key in data.files}
+    except FileNotFoundError:
+        raise ConfigError(f"{what} {path} does not exist") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+        raise ConfigError(f"{what} {path} is not a readable .npz without pickled objects ({exc})") from None
+
+
+def _field(data: dict, key: str, path, kind: str, shape: tuple | None = None) -> np.ndarray:
+    if key not in data:
+        raise ConfigError(f"policy file {path}: missing '{key}'")
+    value = data[key]
+    if value.dtype.kind not in kind:
+        raise ConfigError(f"policy file {path}: '{key}' has dtype {value.dtype}, expected kind '{kind}'")
+    if shape is not None and value.shape != shape:
+        raise ConfigError(f"policy file {path}: '{key}' has shape {value.shape}, expected {shape}")
+    if value.dtype.kind in "fi" and not np.all(np.isfinite(value)):
+        raise ConfigError(f"policy file {path}: '{key}' has non-finite values")
+    return value
+
+
+def load_policy(path: str | os.PathLike) -> tuple[NetworkPolicy, TrainConfig]:
+    """Read and check a policy file; returns the policy and the training config it was made with."""
+    data = read_npz(path, "policy file")
+    version = int(_field(data, "format_version", path, "i", ()))
+    if version != FORMAT_VERSION:
+        raise ConfigError(f"policy file {path}: format_version {version}, this code reads {FORMAT_VERSION}")
+    try:
+        config = train_config_from_mapping(json.loads(str(_field(data, "config_json", path, "U", ()))), "config_json")
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"policy file {path}: config_json is not JSON ({exc})") from None
+    stored_hash = str(_field(data, "config_hash", path, "U", ()))
+    if stored_hash != config.policy_hash():
+        raise ConfigError(f"policy file {path}: config_hash {stored_hash} does not match its config_json "
+                          f"({config.policy_hash()}): the file was edited or corrupted")
+    p = config.policy
+    checks = {"kind": p.kind, "observation": config.env.observation}
+    for key, expected in checks.items():
+        if str(_field(data, key, path, "U", ())) != expected:
+            raise ConfigError(f"policy file {path}: '{key}' does not match config_json ({expected!r})")
+    if int(_field(data, "hidden_units", path, "i", ())) != p.hidden_units:
+        raise ConfigError(f"policy file {path}: 'hidden_units' does not match config_json ({p.hidden_units})")
+    for key in ("frequency_range", "swing_ratio_range", "offset_prior"):
+        value = getattr(p.action, key)
+        if not np.allclose(_field(data, key, path, "f", (len(value),)), value):
+            raise ConfigError(f"policy file {path}: '{key}' does not match config_json ({list(value)})")
+    if not math.isclose(float(_field(data, "offset_prior_weight", path, "f", ())), p.action.offset_prior_weight):
+        raise ConfigError(f"policy file {path}: 'offset_prior_weight' does not match config_json")
+    size = OBSERVATION_SIZES[config.env.observation]
+    obs_mean = _field(data, "obs_mean", path, "f", (size,))
+    obs_std = _field(data, "obs_std", path, "f", (size,))
+    if np.any(obs_std <= 0):
+        raise ConfigError(f"policy file {path}: 'obs_std' must be > 0")
+    params = _field(data, "params", path, "f")
+    policy = NetworkPolicy(p.kind, config.env.observation, p.hidden_units, p.action, obs_mean=obs_mean,
+                           obs_std=obs_std)
+    try:
+        policy.set_params(params)
+    except ConfigError as exc:
+        raise ConfigError(f"policy file {path}: {exc}") from None
+    return policy, config

@@ -1,0 +1,270 @@
+"""train_es: train the gait policy with CMA-ES or ARS, offline, on the in-process closed loop.
+
+    train_es [--config config/train_es.yaml] [--set section.key=value ...] [--algorithm cmaes|ars]
+             [--backend process|ray|serial] [--workers N] [--address ADDR] [--iterations N]
+             [--run-dir DIR]
+    train_es --resume DIR [--iterations N] [--backend ...] [--workers N]
+
+A run folder (default ``runs/<algorithm>-<time>/``) holds: ``config.yaml`` (the resolved config),
+``log.csv`` (one row per iteration), ``learning_curve.png``, ``checkpoint.npz`` (optimiser state
+as its return history, written atomically every ``trainer.checkpoint_every`` iterations and on
+Ctrl-C), ``policy.npz`` (the current mean policy) and ``best_policy.npz`` (the mean policy with
+the best evaluation return so far). ``--resume`` replays the checkpoint and continues exactly where
+the run stopped; iterations after the last checkpoint are redone identically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+from a1_common.config import ConfigError
+from tqdm import tqdm
+
+from gait_policy_node.es import Optimizer, make_optimizer, restore
+from gait_policy_node.learned_policy import NetworkPolicy, read_npz, save_policy, write_npz_atomically
+from gait_policy_node.rollout_workers import EpisodeStats, Evaluator, RolloutTask, make_evaluator
+from gait_policy_node.train_config import TrainConfig, load_train_config
+
+LOG_COLUMNS = ("iteration", "wall_time_s", "episodes", "policy_steps", "mean_return", "std_return", "max_return",
+               "min_return", "falls", "step_size", "eval_return", "eval_speed_error", "eval_cost_of_transport",
+               "eval_fell")
+EVAL_SEED = 0
+# What --resume may change: how and how long to run, not what is learned.
+RESUMABLE_OVERRIDES = ("workers.", "trainer.iterations", "trainer.checkpoint_every", "trainer.eval_every")
+
+
+def episode_seed(trainer_seed: int, iteration: int, candidate: int) -> int:
+    return int(np.random.SeedSequence([trainer_seed, iteration, candidate]).generate_state(1)[0])
+
+
+class Trainer:
+    """The ask / evaluate / tell loop with logging and checkpoints in ``run_dir``."""
+
+    def __init__(self, config: TrainConfig, run_dir: Path, evaluator: Evaluator | None = None) -> None:
+        self.config = config
+        self.run_dir = run_dir
+        self.policy = NetworkPolicy.from_config(config)
+        self.evaluator = evaluator
+        self.rows: list[list[float]] = []
+        self.return_history: list[np.ndarray] = []
+        self.best_eval = -np.inf
+        self.elapsed = 0.0  # wall time of earlier sessions of this run [s]
+        checkpoint = run_dir / "checkpoint.npz"
+        if checkpoint.exists():
+            self._load_checkpoint(checkpoint)
+        else:
+            self.optimizer: Optimizer = make_optimizer(self.policy.num_params, config.trainer)
+
+    @property
+    def iteration(self) -> int:
+        return len(self.return_history)
+
+    def _load_checkpoint(self, path: Path) -> None:
+        data = read_npz(path, "checkpoint")
+        stored = str(data["config_hash"]) if "config_hash" in data else ""
+        if stored != self.config.policy_hash() or str(data.get("algorithm", "")) != self.config.trainer.algorithm:
+            raise ConfigError(f"{path} was written with another policy or algorithm config; "
+                              "resume with the run's own config.yaml")
+        history = np.asarray(data["return_history"], dtype=float)
+        self.optimizer = restore(self.policy.num_params, self.config.trainer, history)
+        self.return_history = list(history)
+        self.rows = np.asarray(data["log"], dtype=float).tolist()
+        self.best_eval = float(data["best_eval_return"])
+        self.elapsed = float(data["wall_time_s"])
+
+    def save_checkpoint(self) -> None:
+        """Checkpoint, policy file, CSV log and learning curve; each file replaced atomically."""
+        mean = self.optimizer.mean
+        history = np.array(self.return_history, dtype=float).reshape(len(self.return_history), -1)
+        write_npz_atomically(self.run_dir / "checkpoint.npz", {
+            "algorithm": np.array(self.config.trainer.algorithm), "config_hash": np.array(self.config.policy_hash()),
+            "return_history": history, "log": np.array(self.rows, dtype=float).reshape(len(self.rows), -1),
+            "best_eval_return": np.array(self.best_eval), "wall_time_s": np.array(self._wall_time()),
+            "mean": mean})
+        self.policy.set_params(mean)
+        save_policy(self.run_dir / "policy.npz", self.policy, self.config, self.iteration)
+        self._write_log()
+        plot_learning_curve(self.rows, self.run_dir / "learning_curve.png", self.config.trainer.algorithm)
+
+    def _wall_time(self) -> float:
+        return self.elapsed + (time.monotonic() - self._session_start)
+
+    def _write_log(self) -> None:
+        buf = io.StringIO()
+        writer = csv.writer(buf)
+        writer.writerow(LOG_COLUMNS)
+        for row in self.rows:
+            writer.writerow([int(v) if k in ("iteration", "episodes", "policy_steps", "falls") else
+                             ("" if np.isnan(v) else f"{v:.6g}") for k, v in zip(LOG_COLUMNS, row, strict=True)])
+        tmp = self.run_dir / ".log.csv.tmp"
+        tmp.write_text(buf.getvalue())
+        tmp.replace(self.run_dir / "log.csv")
+
+    def run(self, iterations: int | None = None) -> None:
+        """Train until ``iterations`` in total (default: the config's); Ctrl-C saves, then re-raises."""
+        cfg = self.config.trainer
+        total = iterations or cfg.iterations
+        self._session_start = time.monotonic()
+        if self.evaluator is None:
+            self.evaluator = make_evaluator(self.config)
+        bar = tqdm(total=total, initial=self.iteration, desc=f"train_es {cfg.algorithm}", unit="it",
+                   dynamic_ncols=True, file=sys.stdout)
+        try:
+            while self.iteration < total:
+                self._iterate(bar)
+                if self.iteration % cfg.checkpoint_every == 0 or self.iteration == total:
+                    self.save_checkpoint()
+        except KeyboardInterrupt:
+            bar.close()
+            self.save_checkpoint()
+            print(f"\ninterrupted: checkpoint at iteration {self.iteration} saved in {self.run_dir}; "
+                  f"continue with: train_es --resume {self.run_dir}", flush=True)
+            raise
+        finally:
+            bar.close()
+            self.evaluator.close()
+
+    def _iterate(self, bar: tqdm) -> None:
+        cfg = self.config.trainer
+        it = self.iteration
+        candidates = self.optimizer.ask()
+        tasks = [RolloutTask(x, episode_seed(cfg.seed, it, j)) for j, x in enumerate(candidates)]
+        evaluate_mean = cfg.eval_every > 0 and it % cfg.eval_every == 0
+        if evaluate_mean:
+            tasks.append(RolloutTask(self.optimizer.mean, EVAL_SEED))
+        results: list[EpisodeStats] = self.evaluator.evaluate(tasks)
+        train, ev = results[: len(candidates)], (results[-1] if evaluate_mean else None)
+        returns = np.array([r.episode_return for r in train])
+        self.optimizer.tell(returns)
+        self.return_history.append(returns)
+        if ev is not None and ev.episode_return > self.best_eval:
+            self.best_eval = ev.episode_return
+            self.policy.set_params(tasks[-1].params)
+            save_policy(self.run_dir / "best_policy.npz", self.policy, self.config, it)
+        nan = float("nan")
+        self.rows.append([it + 1, self._wall_time(), len(results), sum(r.policy_steps for r in results),
+                          returns.mean(), returns.std(), returns.max(), returns.min(), sum(r.fell for r in train),
+                          self.optimizer.step_size, ev.episode_return if ev else nan, ev.speed_error if ev else nan,
+                          ev.cost_of_transport if ev else nan, float(ev.fell) if ev else nan])
+        postfix = {"best": f"{returns.max():.1f}", "mean": f"{returns.mean():.1f}"}
+        if ev is not None:
+            postfix["eval"] = f"{ev.episode_return:.1f}"
+        bar.set_postfix(postfix)
+        bar.update(1)
+
+
+def plot_learning_curve(rows: list[list[float]], path: Path, algorithm: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not rows:
+        return
+    data = np.array(rows, dtype=float)
+    col = {k: i for i, k in enumerate(LOG_COLUMNS)}
+    it = data[:, col["iteration"]]
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    ax.fill_between(it, data[:, col["min_return"]], data[:, col["max_return"]], alpha=0.2,
+                    label="population min-max")
+    ax.plot(it, data[:, col["mean_return"]], label="population mean")
+    ev = ~np.isnan(data[:, col["eval_return"]])
+    if ev.any():
+        ax.plot(it[ev], data[ev, col["eval_return"]], "o-", label="mean policy (evaluation)")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("episode return")
+    ax.set_title(f"{algorithm}: learning curve")
+    ax.legend(loc="lower right")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.stem}.tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    tmp.replace(path)
+
+
+def _parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="train_es", description=__doc__.split("\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", help="training config YAML (default: config/train_es.yaml)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="override one config value (repeatable), e.g. --set trainer.population_size=16")
+    parser.add_argument("--algorithm", choices=("cmaes", "ars"))
+    parser.add_argument("--backend", choices=("process", "ray", "serial"))
+    parser.add_argument("--workers", type=int, help="rollout workers (default: all cores)")
+    parser.add_argument("--address", help="ray cluster address (with --backend ray)")
+    parser.add_argument("--iterations", type=int, help="train until this many iterations in total")
+    parser.add_argument("--seed", type=int)
+    parser.add_argument("--run-dir", type=Path, help="run folder (default: runs/<algorithm>-<time>)")
+    parser.add_argument("--resume", type=Path, metavar="RUN_DIR", help="continue the run in this folder")
+    return parser.parse_args(argv)
+
+
+def _shorthand_overrides(args: argparse.Namespace) -> list[str]:
+    pairs = (("trainer.algorithm", args.algorithm), ("workers.backend", args.backend),
+             ("workers.count", args.workers), ("workers.address", args.address),
+             ("trainer.iterations", args.iterations), ("trainer.seed", args.seed))
+    return [f"{key}={json.dumps(value)}" for key, value in pairs if value is not None]
+
+
+def prepare_run(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
+    """The config and run folder for a new run or a resumed one (config.yaml written for new runs)."""
+    overrides = args.overrides + _shorthand_overrides(args)
+    if args.resume is not None:
+        run_dir = args.resume
+        if not (run_dir / "config.yaml").exists():
+            raise ConfigError(f"--resume {run_dir}: no config.yaml there (not a train_es run folder)")
+        if args.config or args.run_dir:
+            raise ConfigError("--resume takes the run's own config.yaml; drop --config and --run-dir")
+        bad = [o for o in overrides if not o.startswith(RESUMABLE_OVERRIDES)]
+        if bad:
+            raise ConfigError(f"--resume can only change {list(RESUMABLE_OVERRIDES)}, not {bad}")
+        config = load_train_config(run_dir / "config.yaml", overrides)
+        return config, run_dir
+    config = load_train_config(args.config, overrides)
+    run_dir = args.run_dir or Path("runs") / f"{config.trainer.algorithm}-{time.strftime('%Y%m%d-%H%M%S')}"
+    if (run_dir / "checkpoint.npz").exists():
+        raise ConfigError(f"{run_dir} already holds a run; continue it with --resume {run_dir}")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+    return config, run_dir
+
+
+def _raise_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse_args(argv)
+    try:
+        config, run_dir = prepare_run(args)
+        trainer = Trainer(config, run_dir)
+    except ConfigError as exc:
+        print(f"train_es: {exc}", file=sys.stderr)
+        return 2
+    w = config.workers
+    print(f"train_es: {config.trainer.algorithm}, {trainer.policy.num_params} parameters, "
+          f"population {trainer.optimizer.population_size}, {config.env.episode_steps} policy steps per episode, "
+          f"backend {w.backend} ({w.resolved_count() if w.backend != 'serial' else 1} workers); run folder {run_dir}"
+          + (f"; resuming at iteration {trainer.iteration}" if trainer.iteration else ""), flush=True)
+    signal.signal(signal.SIGTERM, _raise_interrupt)  # `kill` saves a checkpoint like Ctrl-C
+    try:
+        trainer.run()
+    except KeyboardInterrupt:
+        return 130
+    print(f"done: {trainer.iteration} iterations; policy {run_dir / 'policy.npz'}, log {run_dir / 'log.csv'}, "
+          f"curve {run_dir / 'learning_curve.png'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
