@@ -1,9 +1,9 @@
 """Gait policies: map the desired and measured base velocity to the paper's gait parameters.
 
 The paper's policy observes [desired velocity, measured velocity] and outputs
-[f, p_swing, theta_2, theta_3, theta_4] at 20 Hz. Until a learned policy file exists (the learning
-issue defines its format), the hand-tuned gaits stand in: one fixed gait by name, or the gaits
-scheduled by commanded speed.
+[f, p_swing, theta_2, theta_3, theta_4] at 20 Hz: a learned policy file (learned_policy.py, made by
+train_es), or the hand-tuned gaits: one fixed gait by name, or the gaits scheduled by commanded
+speed. Velocities are in the yaw-aligned frame [m/s]: desired (x, y), measured (x, y, z).
 """
 
 from __future__ import annotations
@@ -13,6 +13,8 @@ from typing import Protocol
 import numpy as np
 from a1_common.config import ConfigError
 from convex_mpc_node.gait import GaitParams, gait_for_speed, load_hand_tuned_gaits
+
+from gait_policy_node.learned_policy import load_policy
 
 
 class GaitPolicy(Protocol):
@@ -39,6 +41,20 @@ class SpeedScheduledGaits:
         return gait_for_speed(float(np.hypot(desired_velocity[0], desired_velocity[1])), self.gaits)
 
 
+class LearnedGait:
+    """A policy file from train_es, on the paper's observation [v_des_x, v_x, v_y, v_z]."""
+
+    def __init__(self, path: str) -> None:
+        self.network, _ = load_policy(path)
+        if self.network.observation != "basic":
+            raise ConfigError(f"policy '{path}' uses the {self.network.observation!r} observation; the gait "
+                              "policy node provides only 'basic' (desired and measured velocity)")
+
+    def __call__(self, desired_velocity: np.ndarray, measured_velocity: np.ndarray) -> GaitParams:
+        obs = np.array([desired_velocity[0], *np.asarray(measured_velocity, dtype=float)[:3]])
+        return self.network(obs)
+
+
 def make_policy(spec: str) -> GaitPolicy:
     """``scheduled`` | a hand-tuned gait name from config/gaits.yaml | a learned policy file."""
     gaits = load_hand_tuned_gaits()
@@ -47,6 +63,5 @@ def make_policy(spec: str) -> GaitPolicy:
     if spec in gaits:
         return FixedGait(gaits[spec])
     if spec.endswith(".npz"):
-        raise ConfigError(f"policy '{spec}': learned policy files are not supported yet "
-                          "(they arrive with the learning issue); use 'scheduled' or a gait name")
+        return LearnedGait(spec)
     raise ConfigError(f"policy must be 'scheduled', one of {sorted(gaits)}, or a .npz policy file; got {spec!r}")

@@ -1,0 +1,200 @@
+"""sweep_gaits: the paper's hand-tuned baselines (section 5.2) and cost of transport against speed.
+
+    sweep_gaits [--gaits walk slow_trot rapid_trot fly_trot] [--speeds 0.3 0.5 1.0 1.5 2.0 2.5]
+                [--frequencies 1.0 1.5 2.0 2.5 3.0 3.5 4.0] [--policy a.npz ...] [--hold 4.0]
+                [--workers N] [--out DIR]
+
+For each hand-tuned gait (its phase offsets and swing ratio from config/gaits.yaml), at each speed,
+every stepping frequency of the grid runs a constant-speed episode (ramp at 1 m/s^2, then
+``--hold`` seconds); the frequency with the highest reward (config/train_es.yaml's reward, on the
+mean speed and power of the last 3 s) is kept. Learned policies run the same episodes. Writes
+sweep.csv (every run), best.csv (the table), cost_of_transport.png (CoT against speed, one curve per
+gait and policy) into ``--out`` (default log/sweep/<time>/). CoT = P / (m g v) with the reward's m.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import multiprocessing
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from a1_common.config import ConfigError
+from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
+
+from gait_policy_node.env import GaitEnv, make_profile, step_reward
+from gait_policy_node.learned_policy import load_policy
+from gait_policy_node.rollout_workers import run_episode
+from gait_policy_node.train_config import ProfileConfig, TrainConfig, load_train_config, train_config_from_mapping
+
+MEASURE_WINDOW = 3.0  # [s] at the end of each episode
+ACCELERATION = 1.0  # [m/s^2]
+
+_ENV: GaitEnv | None = None
+
+
+def _init_worker(config_dict: dict) -> None:
+    global _ENV
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    config = train_config_from_mapping(config_dict)
+    _ENV = GaitEnv(config.env, config.reward)
+
+
+def run_constant_speed(env: GaitEnv, policy, speed: float, hold: float) -> dict:
+    """Ramp to ``speed`` then hold; mean speed, power, CoT and reward over the last seconds."""
+    steps = round((speed / ACCELERATION + hold) / 0.05)
+    profile = make_profile(ProfileConfig(kind="ramp", target_speed=speed, acceleration=ACCELERATION))
+    stats, record = run_episode(env, policy, seed=0, profile=profile, record=True, steps=steps)
+    data = record.arrays()
+    window = data["time"] >= data["time"][-1] - MEASURE_WINDOW
+    v, power = float(np.mean(data["speed"][window])), float(np.mean(data["power"][window]))
+    rc = env.reward_config
+    terms = step_reward(rc, speed, v, power)
+    return {"speed": v, "power": power, "fell": stats.fell,
+            "cost_of_transport": power / (rc.mass * rc.gravity * max(v, rc.min_speed)),
+            "reward": float("-inf") if stats.fell else terms.reward,
+            "speed_error": abs(v - speed) / max(speed, rc.min_speed)}
+
+
+def _run_task(task: tuple) -> dict:
+    label, spec, speed, hold = task
+    if isinstance(spec, str):
+        policy = load_policy(spec)[0]
+    else:
+        gait = GaitParams(*spec)
+        policy = lambda obs: gait  # noqa: E731
+    result = run_constant_speed(_ENV, policy, speed, hold)
+    return {"name": label, "target_speed": speed,
+            "frequency": spec[0] if not isinstance(spec, str) else float("nan"), **result}
+
+
+def sweep(config: TrainConfig, gaits: list[str], speeds: list[float], frequencies: list[float],
+          policies: list[str], hold: float, workers: int) -> list[dict]:
+    """Every (gait, speed, frequency) and (policy, speed) run, in parallel on ``workers`` processes."""
+    table = load_hand_tuned_gaits()
+    unknown = [g for g in gaits if g not in table]
+    if unknown:
+        raise ConfigError(f"--gaits: unknown {unknown}; allowed: {sorted(table)}")
+    for f in frequencies:
+        if not 0 < f <= 4.0:
+            raise ConfigError(f"--frequencies must be in (0, 4] Hz, got {f}")
+    for s in speeds:
+        if not 0 < s <= 3.5:
+            raise ConfigError(f"--speeds must be in (0, 3.5] m/s, got {s}")
+    for p in policies:
+        load_policy(p)  # fail early on a bad file
+    tasks = [(g, (f, table[g].swing_ratio, table[g].phase_offsets), s, hold)
+             for g in gaits for s in speeds for f in frequencies]
+    tasks += [(Path(p).stem, p, s, hold) for p in policies for s in speeds]
+    ctx = multiprocessing.get_context("spawn")
+    with ctx.Pool(workers, initializer=_init_worker, initargs=(config.to_dict(),)) as pool:
+        results = []
+        for i, r in enumerate(pool.imap(_run_task, tasks, chunksize=1), 1):
+            results.append(r)
+            outcome = "fell" if r["fell"] else f"CoT {r['cost_of_transport']:.2f}"
+            print(f"\r[{i}/{len(tasks)}] {r['name']} {r['target_speed']:.1f} m/s f={r['frequency']:.1f}: "
+                  f"{outcome}      ", end="", flush=True)
+        print()
+    return results
+
+
+def best_per_speed(results: list[dict]) -> list[dict]:
+    """For each (name, speed), the run with the highest reward (learned policies have one run)."""
+    best: dict[tuple, dict] = {}
+    for r in results:
+        key = (r["name"], r["target_speed"])
+        if key not in best or r["reward"] > best[key]["reward"]:
+            best[key] = r
+    return list(best.values())
+
+
+def plot_cost_of_transport(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name in dict.fromkeys(r["name"] for r in rows):
+        pts = sorted((r["target_speed"], r["cost_of_transport"]) for r in rows if r["name"] == name and not r["fell"])
+        if pts:
+            ax.plot(*zip(*pts, strict=True), "o-", label=name)
+    ax.set_xlabel("desired speed [m/s]")
+    ax.set_ylabel("cost of transport")
+    ax.set_title("Cost of transport against speed (hand-tuned: best stepping frequency)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    keys = ["name", "target_speed", "frequency", "speed", "speed_error", "power", "cost_of_transport", "reward",
+            "fell"]
+    with path.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(keys)
+        for r in sorted(rows, key=lambda r: (r["name"], r["target_speed"], r["frequency"])):
+            writer.writerow([f"{r[k]:.4g}" if isinstance(r[k], float) else r[k] for k in keys])
+
+
+def _parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="sweep_gaits", description=__doc__.split("\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--gaits", nargs="+", default=["walk", "slow_trot", "rapid_trot", "fly_trot"])
+    parser.add_argument("--speeds", nargs="+", type=float, default=[0.3, 0.5, 1.0, 1.5, 2.0, 2.5])
+    parser.add_argument("--frequencies", nargs="+", type=float, default=[1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0])
+    parser.add_argument("--policy", action="append", default=[], help="learned policy .npz (repeatable)")
+    parser.add_argument("--hold", type=float, default=4.0, help="seconds at the target speed (>= 3)")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--config", help="reward and env config (default config/train_es.yaml)")
+    parser.add_argument("--out", type=Path)
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse_args(argv)
+    try:
+        if args.hold < MEASURE_WINDOW:
+            raise ConfigError(f"--hold must be >= {MEASURE_WINDOW} s, got {args.hold}")
+        if args.workers < 1:
+            raise ConfigError(f"--workers must be >= 1, got {args.workers}")
+        config = load_train_config(args.config)
+        config = dataclasses.replace(config, env=dataclasses.replace(config.env, observation="basic"))
+        start = time.monotonic()
+        results = sweep(config, args.gaits, args.speeds, args.frequencies, args.policy, args.hold, args.workers)
+    except ConfigError as exc:
+        print(f"sweep_gaits: {exc}", file=sys.stderr)
+        return 2
+    out = args.out or Path("log") / "sweep" / time.strftime("%Y%m%d-%H%M%S")
+    out.mkdir(parents=True, exist_ok=True)
+    best = best_per_speed(results)
+    write_csv(out / "sweep.csv", results)
+    write_csv(out / "best.csv", best)
+    plot_cost_of_transport(best, out / "cost_of_transport.png")
+    names = list(dict.fromkeys(r["name"] for r in best))
+    speeds = sorted({r["target_speed"] for r in best})
+    cell = {(r["name"], r["target_speed"]): r for r in best}
+    print(f"cost of transport (best frequency [Hz] in brackets); {time.monotonic() - start:.0f} s")
+    print(f"{'':<12}" + "".join(f"{s:>14.1f}" for s in speeds))
+    for n in names:
+        line = f"{n:<12}"
+        for s in speeds:
+            r = cell.get((n, s))
+            text = "fell" if r is None or r["fell"] else f"{r['cost_of_transport']:.2f}" + (
+                f" [{r['frequency']:.1f}]" if not np.isnan(r["frequency"]) else "")
+            line += f"{text:>14}"
+        print(line)
+    print(f"wrote {out}/sweep.csv, best.csv, cost_of_transport.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
