@@ -1,0 +1,107 @@
+"""hw_bridge node: the Unitree A1 (or the virtual A1) behind the sim bridge's topics.
+
+Publishes /joint_states, /imu/data, /foot_contacts (same messages, frames and QoS as the sim
+bridge, built by a1_sim_bridge.conversions) and /diagnostics; subscribes /motor_command, and
+/gait/state for the contact recalibration. In lockstep mode (virtual A1 only) it also publishes
+/clock from the robot's tick. Everything else is in a1_hw_bridge.bridge (no rclpy).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from a1_common.config import parameter_defaults
+from a1_common.node_support import declare_parameters, run_node
+from a1_common.robot import a1
+from a1_sim_bridge.node import CONTROL_QOS
+from a1_sim_bridge.sim import SensorReadings
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu, JointState
+
+from a1_hw_bridge.bridge import BridgeConfig, HardwareBridge, Phase
+from a1_sim_bridge import conversions as cv
+from gait_msgs.msg import FootContacts, GaitState, MotorCommand
+
+NO_STATE_ERROR_AGE = 0.5  # [s] without a valid state from the robot -> diagnostics ERROR
+
+
+class HardwareBridgeNode(Node):
+    def __init__(self, **node_kwargs) -> None:
+        """``node_kwargs`` go to rclpy's Node (tests pass ``context`` and ``parameter_overrides``)."""
+        super().__init__("hw_bridge", **node_kwargs)
+        config = BridgeConfig(**declare_parameters(self, parameter_defaults(BridgeConfig()))).validated()
+        self.joint_names = list(a1().joint_names)
+        self.pub_joints = self.create_publisher(JointState, "/joint_states", CONTROL_QOS)
+        self.pub_imu = self.create_publisher(Imu, "/imu/data", CONTROL_QOS)
+        self.pub_contacts = self.create_publisher(FootContacts, "/foot_contacts", CONTROL_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.pub_clock = (self.create_publisher(Clock, "/clock", CONTROL_QOS)
+                          if config.clock_mode == "lockstep" else None)
+        self.bridge = HardwareBridge(
+            config, publish=self._publish, clock_ns=lambda: self.get_clock().now().nanoseconds,
+            publish_clock=self._publish_clock if self.pub_clock is not None else None)
+        self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS)
+        if config.swing_recalibration:
+            self.create_subscription(GaitState, "/gait/state", self._on_gait_state, CONTROL_QOS)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(
+            f"A1 link {self.bridge.link.local_address[0]}:{self.bridge.link.local_address[1]} -> "
+            f"{config.robot_ip}:{config.robot_port}, clock_mode={config.clock_mode}, "
+            f"command_timeout={config.command_timeout}s; standing up once the robot answers")
+        self.bridge.start()
+
+    @property
+    def failure(self) -> Exception | None:
+        """Set when the link thread died (run_node then exits non-zero)."""
+        return self.bridge.failure
+
+    def _on_command(self, msg: MotorCommand) -> None:
+        result = self.bridge.offer_command(cv.joint_command_from_msg(msg), cv.ns_from_stamp(msg.header.stamp))
+        if result == "rejected":
+            self.get_logger().warning(f"rejected /motor_command: {self.bridge.logic.watchdog.last_error}",
+                                      throttle_duration_sec=1.0)
+
+    def _on_gait_state(self, msg: GaitState) -> None:
+        self.bridge.observe_gait_state(cv.ns_from_stamp(msg.header.stamp), np.asarray(msg.desired_contact))
+
+    def _publish(self, readings: SensorReadings, stamp_ns: int) -> None:
+        stamp = cv.stamp_from_ns(stamp_ns)
+        self.pub_imu.publish(cv.imu_msg(readings, stamp))
+        self.pub_contacts.publish(cv.foot_contacts_msg(readings, stamp))
+        # Joint states last: the controller takes them as "this step's sensors are out".
+        self.pub_joints.publish(cv.joint_state_msg(readings, stamp, self.joint_names))
+
+    def _publish_clock(self, stamp_ns: int) -> None:
+        self.pub_clock.publish(Clock(clock=cv.stamp_from_ns(stamp_ns)))
+
+    def _publish_diagnostics(self) -> None:
+        values = self.bridge.diagnostics()
+        status = DiagnosticStatus(name="a1_hw_bridge", hardware_id=str(values["robot"]))
+        phase = self.bridge.logic.phase
+        if phase == Phase.FAULT:
+            status.level, status.message = DiagnosticStatus.ERROR, str(values["fault"])
+        elif float(values["state_age_s"]) > NO_STATE_ERROR_AGE:
+            status.level, status.message = DiagnosticStatus.ERROR, "no valid state from the robot"
+        elif phase != Phase.RUNNING:
+            status.level, status.message = DiagnosticStatus.WARN, phase.value
+        elif values["in_damping"]:
+            status.level, status.message = DiagnosticStatus.WARN, "damping: no valid /motor_command"
+        else:
+            status.level, status.message = DiagnosticStatus.OK, "commanded"
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(msg)
+
+    def shutdown(self) -> None:
+        """Stop the link thread; the last datagrams sent put the motors in damping."""
+        self.bridge.stop()
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node("hw_bridge", HardwareBridgeNode, args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,93 @@
+"""virtual_a1: a simulated A1 that speaks the robot's low-level UDP protocol (for hardware-in-the-loop).
+
+The robot's data go over UDP only (a1_hw_bridge.virtual_a1, no rclpy). This process is a ROS node
+just to publish what a real robot cannot: /sim/ground_truth/odom (evaluation only, stamped with
+robot time) and /diagnostics (datagram counts, injected losses).
+"""
+
+from __future__ import annotations
+
+import threading
+import traceback
+
+from a1_common.config import parameter_defaults
+from a1_common.node_support import declare_parameters, run_node
+from a1_sim_bridge.node import CONTROL_QOS
+from a1_sim_bridge.sim import SensorNoise, SimConfig
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+
+from a1_hw_bridge.virtual_a1 import VirtualA1, VirtualA1Config, VirtualA1Server
+from a1_sim_bridge import conversions as cv
+
+NODE_PARAMETERS = {"publish_ground_truth": True}
+
+
+class VirtualA1Node(Node):
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("virtual_a1", **node_kwargs)
+        robot_defaults = parameter_defaults(VirtualA1Config())
+        sim_defaults = {**parameter_defaults(SimConfig()), **parameter_defaults(SensorNoise())}
+        params = declare_parameters(self, {**robot_defaults, **sim_defaults, **NODE_PARAMETERS})
+        config = VirtualA1Config(**{k: params[k] for k in robot_defaults}).validated()
+        sim_config = SimConfig.from_parameters({k: params[k] for k in sim_defaults})
+        self.robot = VirtualA1(config, sim_config)
+        self.publish_ground_truth = bool(params["publish_ground_truth"])
+        self.pub_truth = self.create_publisher(Odometry, "/sim/ground_truth/odom", CONTROL_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.server = VirtualA1Server(self.robot, on_tick=self._on_tick)
+        self.failure: Exception | None = None
+        self.create_timer(1.0, self._publish_diagnostics)
+        host, port = self.server.address
+        self.get_logger().info(
+            f"virtual A1 on {host}:{port} (UDP), clock_mode={config.clock_mode}, world={sim_config.world}, "
+            f"packet_loss={config.packet_loss}, on_command_loss={config.on_command_loss} "
+            f"after {config.command_loss_timeout}s")
+        self._thread = threading.Thread(target=self._serve, name="virtual_a1", daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        try:
+            self.server.serve()
+        except Exception as exc:  # a dead robot loop must be loud
+            self.failure = exc
+            self.get_logger().fatal(f"virtual A1 loop failed: {exc!r}\n{traceback.format_exc()}")
+            self.context.try_shutdown()
+
+    def _on_tick(self) -> None:
+        if self.publish_ground_truth:
+            sim = self.robot.sim
+            stamp = cv.stamp_from_ns(sim.steps * round(sim.config.time_step * 1e9))
+            self.pub_truth.publish(cv.ground_truth_msg(sim.ground_truth(), stamp))
+
+    def _publish_diagnostics(self) -> None:
+        r = self.robot
+        status = DiagnosticStatus(name="virtual_a1", hardware_id=f"{r.config.host}:{r.config.port}")
+        status.level = DiagnosticStatus.OK if r.stats.accepted else DiagnosticStatus.WARN
+        status.message = "commanded" if r.stats.accepted else "waiting for commands"
+        c, s = r.counters, r.stats
+        values = {
+            "clock_mode": r.config.clock_mode, "robot_time_s": f"{r.sim.time:.3f}", "ticks": c.ticks,
+            "commands_received": s.received, "commands_accepted": s.accepted, "dropped_wrong_size": s.wrong_size,
+            "dropped_bad_crc": s.bad_crc, "dropped_not_low_level": s.bad_level, "states_sent": s.sent,
+            "commands_lost_injected": c.commands_lost, "states_lost_injected": c.states_lost,
+            "commands_refused": c.commands_refused, "last_refusal": r.last_error,
+            "command_loss_fallbacks": c.command_loss_fallbacks, "realtime_overruns": self.server.overruns,
+        }
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        self.pub_diag.publish(DiagnosticArray(status=[status]))
+
+    def shutdown(self) -> None:
+        self.server.stop()
+        self._thread.join(timeout=2.0)
+        if not self._thread.is_alive():
+            self.robot.close()
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node("virtual_a1", VirtualA1Node, args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,119 @@
+"""Hardware-in-the-loop end to end: the graph on the hardware bridge, the robot a virtual A1 over UDP.
+
+Every node is its own process; the only path between the bridge and the (simulated) robot is the
+A1's low-level UDP protocol on loopback. Both run in lockstep (one 2 ms robot tick per command
+datagram, /clock from the robot's tick), so the runs do not depend on this machine's speed. The
+virtual A1 starts with the robot dropped without a settle phase: the bridge's safe start has to
+stand it up before the controller gets the sensors.
+"""
+
+from __future__ import annotations
+
+import socket
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from graph_helpers import CONFIG, Graph
+from rclpy.executors import SingleThreadedExecutor
+from ros_helpers import spin_until
+from test_graph_e2e import DAMPING_KD, Watcher, run_until
+
+STAND_UP_DONE = 2.5  # [s] robot time: bridge stand-up 1.5 s, then the controller's 1 s stand ramp
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class DiagnosticsWatcher(Watcher):
+    """The e2e watcher, plus the latest /diagnostics values of each status."""
+
+    def __init__(self, context) -> None:
+        super().__init__(context)
+        self.diagnostics: dict[str, dict[str, str]] = {}
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
+
+
+def start_hil_graph(g: Graph, packet_loss: float, lockstep_timeout: float = 0.5) -> None:
+    port = free_udp_port()
+    g.start("virtual_a1", "a1_hw_bridge", "virtual_a1", "--ros-args", "--params-file", str(CONFIG / "virtual_a1.yaml"),
+            "-p", "clock_mode:=lockstep", "-p", f"port:={port}", "-p", f"packet_loss:={packet_loss}",
+            "-p", "loss_seed:=7", "-p", "settle_time:=0.0")
+    g.start("hw_bridge", "a1_hw_bridge", "hw_bridge", "--ros-args", "--params-file", str(CONFIG / "a1_hw_bridge.yaml"),
+            "-p", "clock_mode:=lockstep", "-p", "robot_ip:=127.0.0.1", "-p", f"robot_port:={port}",
+            "-p", "local_port:=0", "-p", "state_timeout:=0.02", "-p", f"lockstep_timeout:={lockstep_timeout}")
+    g.start("state_estimator", "state_estimator_node", "state_estimator", "--ros-args", "--params-file",
+            str(CONFIG / "state_estimator.yaml"), "-p", "use_sim_time:=true")
+    g.start_controller()
+    g.start("gait_policy", "gait_policy_node", "gait_policy", "--ros-args", "--params-file",
+            str(CONFIG / "gait_policy.yaml"), "-p", "use_sim_time:=true")
+
+
+@pytest.fixture
+def hil(tmp_path, rclpy_context):
+    g = Graph(tmp_path)
+    watcher = DiagnosticsWatcher(rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(watcher)
+    yield g, watcher, executor
+    g.stop()
+    executor.shutdown()
+    watcher.destroy_node()
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_hil_walks_1_mps_then_damps_within_50_ms_of_controller_death(hil):
+    g, watcher, executor = hil
+    start_hil_graph(g, packet_loss=0.0, lockstep_timeout=0.05)
+    watcher.speed = 1.0
+    run_until(executor, watcher, g, 7.5, wall_timeout=300)
+    assert watcher.lowest() > 0.18, "fell"
+    assert max(z for t, _, z in watcher.truth if STAND_UP_DONE - 1.0 < t < STAND_UP_DONE) > 0.24, "never stood up"
+    # 1 m/s^2 to 1.0 m/s after the stand-up: 5 s into walking is t = 6.5 .. 7.5 s, as with the sim bridge.
+    speed = watcher.mean_speed(6.5, 7.5)
+    assert speed == pytest.approx(1.0, rel=0.10)
+    g.kill("convex_mpc")
+    killed_at = watcher.sim_time()
+    run_until(executor, watcher, g, killed_at + 0.1, wall_timeout=60)
+    last_command = max(watcher.commands)
+    # Damping signature in what the robot reports: tauEst over a tick = -kd * (velocity at its start),
+    # to the wire's resolution (1/256 N m, float32 velocities).
+    damping_start = None
+    for (_, dq0, _), (t1, _, tau1) in zip(watcher.joints, watcher.joints[1:], strict=False):
+        if t1 > last_command and np.allclose(tau1, np.clip(-DAMPING_KD * dq0, -33.5, 33.5), atol=4e-3):
+            damping_start = t1
+            break
+    assert damping_start is not None, "the bridge never sent damping"
+    assert damping_start - last_command <= 0.05 + 1e-9, f"damping {damping_start - last_command:.3f} s after"
+    print(f"HIL: mean speed {speed:.3f} m/s at 6.5-7.5 s; damping {1e3 * (damping_start - last_command):.0f} ms "
+          "(robot time) after the last controller command")
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_hil_5_percent_packet_loss_does_not_fall(hil):
+    g, watcher, executor = hil
+    start_hil_graph(g, packet_loss=0.05)
+    watcher.speed = 1.0
+    run_until(executor, watcher, g, 7.5, wall_timeout=300)
+    assert watcher.lowest() > 0.18, "fell"
+    speed = watcher.mean_speed(6.5, 7.5)
+    assert speed > 0.85, f"walked at {speed:.2f} m/s only"
+    # The losses really happened, in both directions, and the bridge saw the lost states.
+    assert spin_until(executor, lambda: {"virtual_a1", "a1_hw_bridge"} <= set(watcher.diagnostics), 5.0)
+    robot, bridge = watcher.diagnostics["virtual_a1"], watcher.diagnostics["a1_hw_bridge"]
+    ticks = int(robot["ticks"])
+    assert 0.03 * ticks < int(robot["commands_lost_injected"]) < 0.07 * ticks
+    assert 0.03 * ticks < int(robot["states_lost_injected"]) < 0.07 * ticks
+    assert int(bridge["state_timeouts"]) >= 0.5 * int(robot["states_lost_injected"])  # snapshots differ in time
+    print(f"HIL 5% loss: mean speed {speed:.3f} m/s at 6.5-7.5 s over {ticks} ticks; "
+          f"lost {robot['commands_lost_injected']} commands, {robot['states_lost_injected']} states")
+
