@@ -1,0 +1,153 @@
+"""train_es end to end (issue 7): tiny runs of the real command, kill and resume, Ctrl-C, backends.
+
+Tiny means 4 policy steps per episode, population 4, 8 hidden units: the same code paths as a
+full run, a few seconds each.
+"""
+
+from __future__ import annotations
+
+import csv
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from a1_common.config import ConfigError
+from gait_policy_node.learned_policy import load_policy, read_npz
+from gait_policy_node.rollout_workers import ProcessEvaluator, RayEvaluator, RolloutTask, SerialEvaluator
+from gait_policy_node.train_config import load_train_config
+from gait_policy_node.train_es import Trainer
+
+TINY = ["env.episode_steps=4", "trainer.population_size=4", "trainer.ars_directions=2", "policy.hidden_units=8",
+        "trainer.eval_every=1", "trainer.checkpoint_every=1"]
+COMPARED = ("iteration", "episodes", "policy_steps", "mean_return", "std_return", "max_return", "min_return",
+            "falls", "step_size", "eval_return", "eval_speed_error", "eval_cost_of_transport", "eval_fell")
+
+
+def train_es(*args: str, **popen) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "gait_policy_node.train_es", *args]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **popen)
+
+
+def tiny_args(run_dir: Path, *extra: str) -> list[str]:
+    return [a for o in TINY for a in ("--set", o)] + ["--run-dir", str(run_dir), *extra]
+
+
+def log_rows(run_dir: Path) -> list[dict]:
+    with (run_dir / "log.csv").open() as fh:
+        return [{k: row[k] for k in COMPARED} for row in csv.DictReader(fh)]
+
+
+def checkpoint_iterations(run_dir: Path) -> int:
+    try:
+        return len(read_npz(run_dir / "checkpoint.npz", "checkpoint")["return_history"])
+    except ConfigError:  # not written yet
+        return 0
+
+
+def wait_for(condition, timeout: float, proc: subprocess.Popen) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert proc.poll() is None, f"train_es ended early:\n{proc.stdout.read()}"
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.05)
+
+
+def test_two_iterations_end_to_end(tmp_path):
+    run = tmp_path / "run"
+    proc = train_es(*tiny_args(run, "--iterations", "2", "--backend", "process", "--workers", "2"))
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 0, out
+    assert "train_es: cmaes" in out and "done: 2 iterations" in out
+    for name in ("config.yaml", "log.csv", "learning_curve.png", "checkpoint.npz", "policy.npz", "best_policy.npz"):
+        assert (run / name).stat().st_size > 0, name
+    rows = log_rows(run)
+    assert [r["iteration"] for r in rows] == ["1", "2"] and all(r["episodes"] == "5" for r in rows)
+    policy, config = load_policy(run / "policy.npz")
+    assert config == load_train_config(run / "config.yaml") and policy.num_params == 8 * 5 + 8 * 9
+    assert np.any(policy.params != 0)  # the mean moved
+
+
+def test_resume_after_kill_continues_exactly(tmp_path):
+    straight, killed = tmp_path / "straight", tmp_path / "killed"
+    proc = train_es(*tiny_args(straight, "--iterations", "4", "--backend", "serial"))
+    assert proc.wait(timeout=300) == 0
+    proc = train_es(*tiny_args(killed, "--iterations", "4", "--backend", "serial"))
+    wait_for(lambda: checkpoint_iterations(killed) >= 2, 300, proc)
+    proc.kill()  # SIGKILL: no chance to save anything more
+    proc.wait()
+    stopped_at = checkpoint_iterations(killed)
+    assert 2 <= stopped_at < 4
+    resumed = train_es("--resume", str(killed), "--iterations", "4")
+    out, _ = resumed.communicate(timeout=300)
+    assert resumed.returncode == 0 and f"resuming at iteration {stopped_at}" in out, out
+    assert log_rows(killed) == log_rows(straight)
+    a, _ = load_policy(killed / "policy.npz")
+    b, _ = load_policy(straight / "policy.npz")
+    np.testing.assert_array_equal(a.params, b.params)
+
+
+def test_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(tmp_path):
+    run = tmp_path / "run"
+    proc = train_es(*tiny_args(run, "--iterations", "1000", "--backend", "process", "--workers", "2",
+                               "--set", "trainer.checkpoint_every=1000"))
+    wait_for(lambda: (run / "best_policy.npz").exists(), 300, proc)  # written during iteration 1
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 130, out
+    assert "continue with: train_es --resume" in out
+    assert checkpoint_iterations(run) >= 1 and len(log_rows(run)) == checkpoint_iterations(run)
+
+
+def test_resume_refuses_to_change_what_is_learned(tmp_path):
+    run = tmp_path / "run"
+    assert train_es(*tiny_args(run, "--iterations", "1", "--backend", "serial")).wait(timeout=300) == 0
+    proc = train_es("--resume", str(run), "--set", "reward.energy_weight=0.1")
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and "--resume can only change" in out
+    proc = train_es(*tiny_args(run, "--iterations", "1"))
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and "already holds a run" in out
+    proc = train_es("--set", "trainer.sigma0=0")
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and "trainer.sigma0 must be in (0.0, 10.0]" in out
+
+
+def test_ars_trains_in_process(tmp_path):
+    config = load_train_config(overrides=[*TINY, "trainer.algorithm=ars", "workers.backend=serial"])
+    trainer = Trainer(config, tmp_path)
+    trainer.run(2)
+    assert trainer.iteration == 2 and len(trainer.return_history[0]) == 4  # 2 directions x (+, -)
+    assert np.any(trainer.optimizer.mean != 0)
+
+
+@pytest.mark.slow
+def test_backends_agree_for_the_same_seed():
+    pytest.importorskip("ray")
+    config = load_train_config(overrides=[*TINY, "workers.count=2"])
+    rng = np.random.default_rng(0)
+    params = [rng.normal(0, 0.5, 8 * 5 + 8 * 9) for _ in range(3)]
+    tasks = [RolloutTask(params[i], seed) for i, seed in ((0, 0), (1, 1), (2, 2), (0, 0))]
+    serial = SerialEvaluator(config)
+    try:
+        expected = [r.episode_return for r in serial.evaluate(tasks)]
+    finally:
+        serial.close()
+    assert expected[0] == expected[3] and len(set(expected[:3])) == 3
+    pool = ProcessEvaluator(config, 2)
+    try:
+        assert [r.episode_return for r in pool.evaluate(tasks)] == expected
+    finally:
+        pool.close()
+    import ray
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        on_ray = RayEvaluator(config, 2)
+        assert [r.episode_return for r in on_ray.evaluate(tasks)] == expected
+        on_ray.close()
+    finally:
+        ray.shutdown()
