@@ -2,7 +2,7 @@
 # Bring up the A1 stack: sim bridge, state estimator, convex MPC controller, gait policy.
 #
 # Usage: scripts/bringup.sh [--world flat|step|rough|soft|slope] [--clock lockstep|realtime]
-#                           [--policy scheduled|walk|slow_trot|rapid_trot|fly_trot]
+#                           [--policy scheduled|walk|slow_trot|rapid_trot|fly_trot|<file>.npz]
 # Then drive it: ros2 topic pub /cmd_vel geometry_msgs/msg/Twist "{linear: {x: 1.0}}"
 #   (without the ros2 CLI: install/gait_policy_node/lib/gait_policy_node/velocity_command
 #    --ros-args -p profile:=constant -p speed:=1.0 -p use_sim_time:=true)
@@ -24,7 +24,11 @@ done
 source "$ROOT/scripts/lib/nodes.sh"
 check_choice bringup.sh --world "$WORLD" flat step rough soft slope
 check_choice bringup.sh --clock "$CLOCK" lockstep realtime
-check_choice bringup.sh --policy "$POLICY" scheduled walk slow_trot rapid_trot fly_trot
+case "$POLICY" in
+  *.npz) [ -f "$POLICY" ] || { echo "bringup.sh: --policy file '$POLICY' does not exist" >&2; exit 2; }
+         POLICY="$(cd "$(dirname "$POLICY")" && pwd)/$(basename "$POLICY")" ;;  # nodes run elsewhere
+  *) check_choice bringup.sh --policy "$POLICY" scheduled walk slow_trot rapid_trot fly_trot ;;
+esac
 # shellcheck disable=SC1091
 source "$ROOT/scripts/env.sh"
 LOGDIR="$ROOT/log/bringup/$(date +%Y%m%d-%H%M%S)"
