@@ -1,0 +1,71 @@
+"""The gait_policy node over real rclpy with a learned policy file: /cmd_vel and /odom in, the
+network's gait on /gait/params out; a bad file stops the node with the reason."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from a1_common.config import ConfigError
+from a1_sim_bridge.node import CONTROL_QOS
+from gait_policy_node.learned_policy import NetworkPolicy, save_policy
+from gait_policy_node.policy_node import COMMAND_QOS, GaitPolicyNode
+from gait_policy_node.train_config import TrainConfig
+from geometry_msgs.msg import Twist
+from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from ros_helpers import spin_until
+
+from gait_msgs.msg import GaitParams as GaitParamsMsg
+
+
+@pytest.mark.ros
+def test_learned_policy_file_drives_gait_params(rclpy_context, tmp_path):
+    config = TrainConfig()
+    network = NetworkPolicy.from_config(config)
+    network.set_params(np.random.default_rng(2).normal(0, 0.2, network.num_params))
+    path = tmp_path / "policy.npz"
+    save_policy(path, network, config)
+    node = GaitPolicyNode(context=rclpy_context, parameter_overrides=[Parameter("policy", value=str(path))])
+    io = Node("policy_io", context=rclpy_context)
+    received: list[GaitParamsMsg] = []
+    io.create_subscription(GaitParamsMsg, "/gait/params", received.append, COMMAND_QOS)
+    cmd_pub = io.create_publisher(Twist, "/cmd_vel", COMMAND_QOS)
+    odom_pub = io.create_publisher(Odometry, "/odom", CONTROL_QOS)
+    # Robot yawed by 90 degrees, moving 1.2 m/s forward in its own (base_link) frame.
+    odom = Odometry()
+    odom.pose.pose.orientation.z, odom.pose.pose.orientation.w = math.sin(math.pi / 4), math.cos(math.pi / 4)
+    odom.twist.twist.linear.x = 1.2
+    cmd = Twist()
+    cmd.linear.x = 1.5
+    expected = network(np.array([1.5, 1.2, 0.0, 0.0]))  # yaw-aligned frame: forward is forward
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    executor.add_node(io)
+
+    def arrived() -> bool:
+        cmd_pub.publish(cmd)
+        odom_pub.publish(odom)
+        return bool(received) and math.isclose(received[-1].stepping_frequency, expected.stepping_frequency,
+                                               rel_tol=1e-6)
+
+    try:
+        assert spin_until(executor, arrived, timeout_s=20.0), received[-1:] or "no /gait/params"
+        last = received[-1]
+        assert last.swing_ratio == pytest.approx(expected.swing_ratio)
+        np.testing.assert_allclose(last.phase_offsets, expected.phase_offsets, atol=1e-9)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        io.destroy_node()
+
+
+@pytest.mark.ros
+def test_a_corrupt_policy_file_is_refused_with_the_reason(rclpy_context, tmp_path):
+    path = tmp_path / "broken.npz"
+    path.write_bytes(b"PK\x03\x04 not really a zip")
+    with pytest.raises(ConfigError, match=r"policy file .*broken\.npz"):
+        GaitPolicyNode(context=rclpy_context, parameter_overrides=[Parameter("policy", value=str(path))])
