@@ -126,7 +126,7 @@ def _float32(name: str, values: np.ndarray) -> np.ndarray:
     bad = np.flatnonzero(~np.isfinite(v32))
     if bad.size:
         i = int(bad[0])
-        raise ProtocolError("value", f"{name}[{i}] = {v64.flat[i]!r} is not a finite float32: never sent")
+        raise ProtocolError("value", f"{name}[{i}] = {float(v64.flat[i])!r} is not a finite float32: never sent")
     return v32
 
 
@@ -138,9 +138,9 @@ def _scaled_int16(name: str, values: np.ndarray, scale: float, *, clip: bool, ro
     outside = np.flatnonzero((scaled < lo) | (scaled > hi))
     if outside.size and not clip:
         i = int(outside[0])
-        raise ProtocolError(
-            "value", f"{name}[{i}] = {np.asarray(values, dtype=float).flat[i]!r} does not fit the int16 wire field: "
-            f"allowed [{lo / scale}, {hi / scale}] (the SDK would wrap it)")
+        value = float(np.asarray(values, dtype=float).flat[i])
+        raise ProtocolError("value", f"{name}[{i}] = {value!r} does not fit the int16 wire field: "
+                                     f"allowed [{lo / scale}, {hi / scale}] (the SDK would wrap it)")
     return np.clip(scaled, lo, hi).astype(np.int16)
 
 
@@ -153,7 +153,7 @@ def _integers(name: str, values, bits: int, *, signed: bool = False) -> np.ndarr
     outside = np.flatnonzero((arr < lo) | (arr > hi))
     if outside.size:
         i = int(outside[0])
-        raise ProtocolError("value", f"{name} = {arr.flat[i]} outside [{lo}, {hi}]")
+        raise ProtocolError("value", f"{name} = {int(arr.flat[i])} outside [{lo}, {hi}]")
     return arr
 
 
