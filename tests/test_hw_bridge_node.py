@@ -1,0 +1,205 @@
+"""The hw_bridge node in realtime mode (as on the real robot) against a scripted robot on loopback.
+
+The bridge is the installed executable in its own process; the robot is a UDP socket in this test
+that answers every command datagram with a state datagram (an ideal servo: the joints go where
+they are told), so every datagram the bridge sends is seen and timed here. The "controller" is a
+node in this test that answers each /joint_states with a /motor_command, then goes silent.
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+from a1_common.command import JointCommand
+from a1_common.robot import a1
+from a1_hw_bridge.protocol import IDLE_MODE, SERVO_MODE, LowCmd, LowState, pack_low_state, unpack_low_cmd
+from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
+from a1_sim_bridge.node import CONTROL_QOS
+from diagnostic_msgs.msg import DiagnosticArray
+from graph_helpers import CONFIG, Graph
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from ros_helpers import spin_until
+from sensor_msgs.msg import Imu, JointState
+
+from gait_msgs.msg import FootContacts, MotorCommand
+
+ROBOT = a1()
+LYING = np.tile([0.0, 1.2, -2.65], 4)
+ROLL = 0.1  # [rad] the scripted robot's body roll
+STANDING_RAW = np.array([100, 120, 140, 160])  # raw foot sensor readings while standing
+
+
+class ScriptedRobot:
+    """Answers each LowCmd with a LowState; records (monotonic time, command) of every datagram."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        self.received: list[tuple[float, LowCmd]] = []
+        self.q = LYING.copy()
+        self.tick = 0
+        self._running = True
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        while self._running:
+            if not select.select([self.sock], [], [], 0.05)[0]:
+                continue
+            data, client = self.sock.recvfrom(2048)
+            now = time.monotonic()
+            cmd = unpack_low_cmd(data)
+            self.received.append((now, cmd))
+            servo = (cmd.mode[:12] == SERVO_MODE) & (cmd.kp[:12] > 0)
+            self.q = np.where(servo, cmd.q[:12], self.q)
+            if len(self.received) == 1:  # one corrupt and one short datagram, to be dropped and counted
+                bad = bytearray(self._state())
+                bad[40] ^= 0xFF
+                self.sock.sendto(bytes(bad), client)
+                self.sock.sendto(self._state()[:770], client)
+            self.sock.sendto(self._state(), client)
+
+    def _state(self) -> bytes:
+        self.tick += 2000
+        s = LowState(quaternion=np.array([np.cos(ROLL / 2), np.sin(ROLL / 2), 0.0, 0.0]),
+                     gyroscope=np.array([0.1, 0.2, 0.3]), accelerometer=np.array([0.0, 0.0, 9.81]), tick=self.tick,
+                     foot_force=STANDING_RAW)
+        s.q[:12] = self.q
+        s.mode[:12] = SERVO_MODE
+        return pack_low_state(s)
+
+    def since(self, t: float) -> list[tuple[float, LowCmd]]:
+        return [(tr, c) for tr, c in list(self.received) if tr >= t]
+
+    def stop(self) -> None:
+        self._running = False
+        self._thread.join(timeout=2)
+        self.sock.close()
+
+
+class FakeController(Node):
+    """Answers each /joint_states with a distinctive command while ``active``; records the topics."""
+
+    def __init__(self, context) -> None:
+        super().__init__("fake_controller", context=context)
+        self.active = False
+        self.counter = 0
+        self.last_publish = float("-inf")
+        self.joints: list[JointState] = []
+        self.contacts: list[FootContacts] = []
+        self.imu: list[Imu] = []
+        self.diagnostics: dict[str, str] = {}
+        self.pub = self.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
+        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
+        self.create_subscription(FootContacts, "/foot_contacts", self.contacts.append, CONTROL_QOS)
+        self.create_subscription(Imu, "/imu/data", self.imu.append, CONTROL_QOS)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+
+    def command(self) -> JointCommand:
+        position = ROBOT.nominal_joint_angles.copy()
+        position[2] = -3.0  # FR calf beyond its limit: must reach the wire clamped
+        torque = np.zeros(12)
+        torque[0] = (self.counter % 1000) * 0.01  # tells fresh commands from re-sent ones on the wire
+        return JointCommand(position=position, kp=np.full(12, 37.5), kd=np.full(12, 1.25), torque=torque)
+
+    def _on_joints(self, msg: JointState) -> None:
+        self.joints.append(msg)
+        if self.active:
+            self.counter += 1
+            self.pub.publish(motor_command_msg(self.command(), msg.header.stamp))
+            self.last_publish = time.monotonic()
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name == "a1_hw_bridge":
+                self.diagnostics = {kv.key: kv.value for kv in status.values}
+
+
+@pytest.fixture
+def scripted(tmp_path, rclpy_context):
+    robot = ScriptedRobot()
+    graph = Graph(tmp_path)
+    node = FakeController(rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    graph.start("hw_bridge", "a1_hw_bridge", "hw_bridge", "--ros-args", "--params-file",
+                str(CONFIG / "a1_hw_bridge.yaml"), "-p", "robot_ip:=127.0.0.1", "-p", f"robot_port:={robot.port}",
+                "-p", "local_ip:=127.0.0.1", "-p", "local_port:=0", "-p", "stand_up_time:=0.3",
+                "-p", "stand_hold_time:=0.1")
+    yield robot, graph, node, executor
+    graph.stop()
+    executor.shutdown()
+    node.destroy_node()
+    robot.stop()
+
+
+@pytest.mark.ros
+def test_realtime_bridge_safe_start_topics_commands_and_damping_within_50_ms(scripted):
+    robot, graph, node, executor = scripted
+    assert spin_until(executor, lambda: len(node.joints) >= 20 and len(node.contacts) >= 5 and len(node.imu) >= 5,
+                      timeout_s=60.0), "no sensors from the bridge:\n" + graph.log("hw_bridge")[-2000:]
+    first_sensor = node.joints[0]
+
+    # Safe start on the wire: damping first, then PD targets interpolated from the lying pose to standing.
+    _, first = robot.received[0]
+    assert not first.kp.any() and np.all(first.kd[:12] == ROBOT.damping_kd)
+    stand = [c for _, c in robot.received if c.kp[0] == ROBOT.joint_kp[0]]
+    assert np.allclose(stand[0].q[:12], LYING, atol=0.05)
+    assert np.allclose(stand[-1].q[:12], ROBOT.nominal_joint_angles, atol=1e-6)
+    thigh = np.array([c.q[1] for c in stand])
+    assert np.all(np.diff(thigh) <= 1e-6) and thigh[0] - thigh[-1] > 0.25  # 1.2 -> 0.9 rad, monotonic
+    # Sensors only once standing (the scripted servo followed the targets), in the sim bridge's messages.
+    assert np.allclose(first_sensor.position, ROBOT.nominal_joint_angles, atol=1e-6)
+    assert list(first_sensor.name) == list(ROBOT.joint_names) and first_sensor.header.frame_id == "base_link"
+    contacts = node.contacts[-1]
+    assert all(contacts.contact) and np.allclose(contacts.normal_force, STANDING_RAW)  # offset 0, 1 N/unit
+    imu = node.imu[-1]
+    assert imu.header.frame_id == "imu_link"
+    assert [imu.orientation.x, imu.orientation.w] == pytest.approx([np.sin(ROLL / 2), np.cos(ROLL / 2)], abs=1e-7)
+    assert imu.angular_velocity.z == pytest.approx(0.3, abs=1e-7)
+
+    # The controller takes over: its commands reach the wire, position clamped to the joint limits.
+    start = time.monotonic()
+    node.active = True
+    assert spin_until(executor, lambda: node.counter >= 200, timeout_s=30.0)
+    commanded = [c for _, c in robot.since(start) if c.kp[0] == 37.5]
+    assert len(commanded) > 100
+    c = commanded[-1]
+    assert np.all(c.kp[:12] == 37.5) and np.all(c.kd[:12] == 1.25) and np.all(c.mode[12:] == IDLE_MODE)
+    assert c.q[2] == pytest.approx(ROBOT.joint_lower_limits[2], abs=1e-6)
+    assert len({round(c.tau[0] * 256) for c in commanded}) > 50  # fresh commands, not one re-sent
+
+    # The controller dies: damping on the wire within 50 ms of its last command.
+    node.active = False
+    spin_until(executor, lambda: False, timeout_s=0.01)  # let a callback in progress finish
+    last = node.last_publish
+    time.sleep(0.3)  # no spinning: nothing else of this test competes with the scripted robot's thread
+    damping = [t for t, c in robot.since(last) if not c.kp.any() and np.all(c.kd[:12] == ROBOT.damping_kd)]
+    assert damping, "no damping datagram after the controller stopped"
+    latency = damping[0] - last
+    assert latency <= 0.050, f"damping {latency * 1e3:.1f} ms after the last command"
+    print(f"realtime damping latency: {latency * 1e3:.1f} ms after the last /motor_command")
+
+    # An invalid command and a stale one are refused (one at a time: the queues are depth 1).
+    stamp = node.joints[-1].header.stamp
+    bad = motor_command_msg(node.command(), stamp)
+    bad.kd[3] = float("nan")
+    node.pub.publish(bad)
+    spin_until(executor, lambda: False, timeout_s=0.2)
+    node.pub.publish(motor_command_msg(node.command(), stamp_from_ns(ns_from_stamp(stamp) - 1_000_000_000)))
+    spin_until(executor, lambda: False, timeout_s=0.2)
+    assert all(not c.kp.any() for _, c in robot.since(last + 0.05))  # still damping: neither was applied
+
+    # Diagnostics (1 Hz) count it all.
+    assert spin_until(executor, lambda: int(node.diagnostics.get("late_commands", 0)) >= 1, timeout_s=5.0)
+    d = node.diagnostics
+    assert d["phase"] == "running" and d["in_damping"] == "True" and int(d["damping_fallbacks"]) == 1
+    assert int(d["commands_rejected"]) == 1 and "kd[3]" in d["last_rejection"]
+    assert int(d["states_dropped_bad_crc"]) == 1 and int(d["states_dropped_wrong_size"]) == 1
