@@ -1,22 +1,28 @@
 #!/usr/bin/env bash
-# Bring up the A1 stack: sim bridge, state estimator, convex MPC controller, gait policy.
+# Bring up the A1 stack: a bridge to the robot, state estimator, convex MPC controller, gait policy.
 #
 # Usage: scripts/bringup.sh [--world flat|step|rough|soft|slope] [--clock lockstep|realtime]
 #                           [--policy scheduled|walk|slow_trot|rapid_trot|fly_trot|<file>.npz]
+#                           [--bridge sim|hardware|virtual]
+# --bridge: sim (default) = the PyBullet sim bridge; hardware = the real A1 over its low-level UDP
+#   protocol (config/a1_hw_bridge.yaml, realtime only; read docs/hardware.md first); virtual = the
+#   hardware bridge talking UDP on loopback to a virtual A1 that runs the simulation (--world, --clock).
 # Then drive it: ros2 topic pub /cmd_vel geometry_msgs/msg/Twist "{linear: {x: 1.0}}"
 #   (without the ros2 CLI: install/gait_policy_node/lib/gait_policy_node/velocity_command
-#    --ros-args -p profile:=constant -p speed:=1.0 -p use_sim_time:=true)
+#    --ros-args -p profile:=constant -p speed:=1.0 -p use_sim_time:=true; :=false with
+#    --bridge hardware, or virtual in realtime: only the sim bridge and lockstep publish /clock)
 # Each node is started with `ros2 run` when the ros2 CLI exists, else the installed executable;
 # parameters from config/; one log per node in log/bringup/<time>/. Ctrl-C or SIGTERM stops them all.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-WORLD=flat CLOCK=realtime POLICY=scheduled
+WORLD=flat CLOCK=realtime POLICY=scheduled BRIDGE=sim WORLD_GIVEN=0
 while [ $# -gt 0 ]; do
   case "$1" in
-    --world) WORLD="${2:?--world needs a value}"; shift 2 ;;
+    --world) WORLD="${2:?--world needs a value}"; WORLD_GIVEN=1; shift 2 ;;
+    --bridge) BRIDGE="${2:?--bridge needs a value}"; shift 2 ;;
     --clock) CLOCK="${2:?--clock needs a value}"; shift 2 ;;
     --policy) POLICY="${2:?--policy needs a value}"; shift 2 ;;
-    -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
     *) echo "bringup.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -24,6 +30,11 @@ done
 source "$ROOT/scripts/lib/nodes.sh"
 check_choice bringup.sh --world "$WORLD" flat step rough soft slope
 check_choice bringup.sh --clock "$CLOCK" lockstep realtime
+check_choice bringup.sh --bridge "$BRIDGE" sim hardware virtual
+if [ "$BRIDGE" = hardware ]; then
+  [ "$CLOCK" = realtime ] || { echo "bringup.sh: --bridge hardware needs --clock realtime (a real robot does not wait for the controller)" >&2; exit 2; }
+  [ "$WORLD_GIVEN" = 0 ] || { echo "bringup.sh: --world applies to --bridge sim and virtual, not to the real robot" >&2; exit 2; }
+fi
 case "$POLICY" in
   *.npz) [ -f "$POLICY" ] || { echo "bringup.sh: --policy file '$POLICY' does not exist" >&2; exit 2; }
          POLICY="$(cd "$(dirname "$POLICY")" && pwd)/$(basename "$POLICY")" ;;  # nodes run elsewhere
@@ -35,8 +46,8 @@ LOGDIR="$ROOT/log/bringup/$(date +%Y%m%d-%H%M%S)"
 mkdir -p "$LOGDIR"
 trap stop_nodes EXIT
 trap 'exit 130' INT TERM
-start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY"
-echo "[bringup] running (world=$WORLD clock=$CLOCK policy=$POLICY); logs in $LOGDIR; Ctrl-C to stop"
+start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY" "$BRIDGE"
+echo "[bringup] running (bridge=$BRIDGE world=$WORLD clock=$CLOCK policy=$POLICY); logs in $LOGDIR; Ctrl-C to stop"
 while check_nodes; do sleep 1 & wait $! || true; done
 echo "[bringup] a node exited; stopping the others" >&2
 tail -n 20 "$LOGDIR"/*.log >&2

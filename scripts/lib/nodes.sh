@@ -55,14 +55,29 @@ stop_nodes() {  # SIGINT each started node's process group, then SIGKILL what is
   _GS_PIDS=()
 }
 
-start_graph() {  # <logdir> <world> <clock> <policy>: the sim bridge and the three stack nodes
-  local logdir=$1 world=$2 clock=$3 policy=$4 cfg="$GAIT_STACK_ROOT/config"
-  start_node a1_sim_bridge sim_bridge "$logdir" --ros-args --params-file "$cfg/a1_sim_bridge.yaml" \
-    -p world:="$world" -p clock_mode:="$clock"
+start_graph() {  # <logdir> <world> <clock> <policy> [bridge]: a bridge and the three stack nodes
+  # bridge: sim (default) | hardware (the real A1, realtime) | virtual (hw_bridge + virtual_a1 on loopback)
+  local logdir=$1 world=$2 clock=$3 policy=$4 bridge=${5:-sim} cfg="$GAIT_STACK_ROOT/config"
+  case "$bridge" in
+    sim)
+      start_node a1_sim_bridge sim_bridge "$logdir" --ros-args --params-file "$cfg/a1_sim_bridge.yaml" \
+        -p world:="$world" -p clock_mode:="$clock" ;;
+    virtual)
+      start_node a1_hw_bridge virtual_a1 "$logdir" --ros-args --params-file "$cfg/virtual_a1.yaml" \
+        -p world:="$world" -p clock_mode:="$clock"
+      start_node a1_hw_bridge hw_bridge "$logdir" --ros-args --params-file "$cfg/a1_hw_bridge.yaml" \
+        -p robot_ip:=127.0.0.1 -p clock_mode:="$clock" ;;
+    hardware)
+      start_node a1_hw_bridge hw_bridge "$logdir" --ros-args --params-file "$cfg/a1_hw_bridge.yaml" ;;
+    *) echo "nodes.sh: unknown bridge '$bridge' (sim, hardware, virtual)" >&2; return 1 ;;
+  esac
+  # Sim time wherever a bridge publishes /clock: the sim bridge always, the hardware bridge in lockstep.
+  local sim_time=false
+  if [ "$bridge" = sim ] || [ "$clock" = lockstep ]; then sim_time=true; fi
   start_node state_estimator_node state_estimator "$logdir" --ros-args --params-file "$cfg/state_estimator.yaml" \
-    -p use_sim_time:=true
+    -p use_sim_time:=$sim_time
   start_node convex_mpc_node convex_mpc "$logdir" --ros-args --params-file "$cfg/convex_mpc.yaml" \
-    -p use_sim_time:=true
+    -p use_sim_time:=$sim_time
   start_node gait_policy_node gait_policy "$logdir" --ros-args --params-file "$cfg/gait_policy.yaml" \
-    -p use_sim_time:=true -p policy:="$policy"
+    -p use_sim_time:=$sim_time -p policy:="$policy"
 }

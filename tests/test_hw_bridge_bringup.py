@@ -1,0 +1,69 @@
+"""scripts/bringup.sh --bridge: the hardware bridge (and the virtual A1) from the same bring-up script."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+
+import pytest
+from a1_sim_bridge.conversions import ns_from_stamp
+from a1_sim_bridge.node import CONTROL_QOS
+from graph_helpers import ROOT
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from ros_helpers import spin_until
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+
+BRINGUP = ROOT / "scripts" / "bringup.sh"
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--bridge", "hardware", "--clock", "lockstep"], "--bridge hardware needs --clock realtime"),
+    (["--bridge", "hardware", "--world", "step"], "--world applies to --bridge sim and virtual"),
+    (["--bridge", "robot"], "--bridge must be one of: sim hardware virtual; got 'robot'"),
+])
+def test_bridge_choices_are_checked_before_anything_starts(args, message):
+    result = subprocess.run(["bash", str(BRINGUP), *args], capture_output=True, text=True, timeout=30, check=False)
+    assert result.returncode == 2
+    assert message in result.stderr
+    assert "[nodes] started" not in result.stdout
+
+
+@pytest.mark.ros
+def test_bringup_virtual_a1_in_lockstep_runs_on_robot_time_and_stops_clean(rclpy_context):
+    proc = subprocess.Popen(["bash", str(BRINGUP), "--bridge", "virtual", "--clock", "lockstep"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    started: dict[str, int] = {}
+    deadline = time.monotonic() + 60
+    while len(started) < 5 and time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if "started" in line and "(pid " in line:
+            started[line.split("started ")[1].split(" ")[0]] = int(line.split("(pid ")[1].split(",")[0])
+    assert sorted(started) == ["a1_hw_bridge/hw_bridge", "a1_hw_bridge/virtual_a1", "convex_mpc_node/convex_mpc",
+                               "gait_policy_node/gait_policy", "state_estimator_node/state_estimator"]
+    listener = Node("bringup_listener", context=rclpy_context)
+    joints: list[JointState] = []
+    clock: list[Clock] = []
+    listener.create_subscription(JointState, "/joint_states", joints.append, CONTROL_QOS)
+    listener.create_subscription(Clock, "/clock", clock.append, CONTROL_QOS)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(listener)
+    try:
+        assert spin_until(executor, lambda: len(joints) > 50, 90.0), "the hardware bridge never published"
+        # Lockstep: stamped with the virtual robot's tick (seconds since its start), not the wall clock,
+        # and only after the bridge's 1.5 s stand-up.
+        stamps = [ns_from_stamp(m.header.stamp) * 1e-9 for m in joints]
+        assert 1.5 <= stamps[0] < 60.0 and clock
+        os.kill(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=30)
+    finally:
+        executor.shutdown()
+        listener.destroy_node()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    for pid in started.values():
+        with pytest.raises(ProcessLookupError):
+            os.killpg(pid, 0)  # every node's whole process group is gone
