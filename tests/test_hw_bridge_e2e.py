@@ -9,6 +9,7 @@ stand it up before the controller gets the sensors.
 
 from __future__ import annotations
 
+import json
 import socket
 
 import numpy as np
@@ -80,6 +81,15 @@ def test_hil_walks_1_mps_then_damps_within_50_ms_of_controller_death(hil):
     # 1 m/s^2 to 1.0 m/s after the stand-up: 5 s into walking is t = 6.5 .. 7.5 s, as with the sim bridge.
     speed = watcher.mean_speed(6.5, 7.5)
     assert speed == pytest.approx(1.0, rel=0.10)
+    # The foot contacts were recalibrated from the scheduled swings: the unloaded reading the bridge
+    # learned is the virtual sensor's offset (15 raw units in config/virtual_a1.yaml), a little above
+    # because a scheduled swing also holds the last moments of ground contact after lift-off is due.
+    assert spin_until(executor, lambda: "a1_hw_bridge" in watcher.diagnostics, 5.0)
+    bridge = watcher.diagnostics["a1_hw_bridge"]
+    assert int(bridge["swing_calibrations"]) > 20
+    unloaded = np.array(json.loads(bridge["foot_unloaded_readings"]))
+    assert np.all((unloaded >= 15.0) & (unloaded < 18.0)), unloaded
+    assert int(bridge["states_dropped_bad_crc"]) == int(bridge["states_dropped_wrong_size"]) == 0
     g.kill("convex_mpc")
     killed_at = watcher.sim_time()
     run_until(executor, watcher, g, killed_at + 0.1, wall_timeout=60)
