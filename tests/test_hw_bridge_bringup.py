@@ -32,8 +32,9 @@ def test_bridge_choices_are_checked_before_anything_starts(args, message):
     assert "[nodes] started" not in result.stdout
 
 
-@pytest.mark.ros
-def test_bringup_virtual_a1_in_lockstep_runs_on_robot_time_and_stops_clean(rclpy_context):
+@pytest.fixture
+def virtual_bringup():
+    """bringup.sh --bridge virtual --clock lockstep; yields it and its nodes' pids; nothing outlives the test."""
     proc = subprocess.Popen(["bash", str(BRINGUP), "--bridge", "virtual", "--clock", "lockstep"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     started: dict[str, int] = {}
@@ -42,6 +43,19 @@ def test_bringup_virtual_a1_in_lockstep_runs_on_robot_time_and_stops_clean(rclpy
         line = proc.stdout.readline()
         if "started" in line and "(pid " in line:
             started[line.split("started ")[1].split(" ")[0]] = int(line.split("(pid ")[1].split(",")[0])
+    yield proc, started
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGKILL)
+    for pid in started.values():
+        try:
+            os.killpg(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
+@pytest.mark.ros
+def test_bringup_virtual_a1_in_lockstep_runs_on_robot_time_and_stops_clean(virtual_bringup, rclpy_context):
+    proc, started = virtual_bringup
     assert sorted(started) == ["a1_hw_bridge/hw_bridge", "a1_hw_bridge/virtual_a1", "convex_mpc_node/convex_mpc",
                                "gait_policy_node/gait_policy", "state_estimator_node/state_estimator"]
     listener = Node("bringup_listener", context=rclpy_context)
@@ -51,19 +65,21 @@ def test_bringup_virtual_a1_in_lockstep_runs_on_robot_time_and_stops_clean(rclpy
     listener.create_subscription(Clock, "/clock", clock.append, CONTROL_QOS)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(listener)
-    try:
-        assert spin_until(executor, lambda: len(joints) > 50, 90.0), "the hardware bridge never published"
-        # Lockstep: stamped with the virtual robot's tick (seconds since its start), not the wall clock,
-        # and only after the bridge's 1.5 s stand-up.
-        stamps = [ns_from_stamp(m.header.stamp) * 1e-9 for m in joints]
-        assert 1.5 <= stamps[0] < 60.0 and clock
-        os.kill(proc.pid, signal.SIGTERM)
-        proc.wait(timeout=30)
-    finally:
-        executor.shutdown()
-        listener.destroy_node()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    for pid in started.values():
-        with pytest.raises(ProcessLookupError):
-            os.killpg(pid, 0)  # every node's whole process group is gone
+    published = spin_until(executor, lambda: len(joints) > 50, 90.0)
+    executor.shutdown()
+    listener.destroy_node()
+    assert published, "the hardware bridge never published"
+    # Lockstep: stamped with the virtual robot's tick (seconds since its start), not the wall clock,
+    # and only after the bridge's 1.5 s stand-up.
+    first_stamp = ns_from_stamp(joints[0].header.stamp) * 1e-9
+    assert 1.5 <= first_stamp < 60.0 and clock
+    os.kill(proc.pid, signal.SIGTERM)
+    assert proc.wait(timeout=30) != 0  # the script reports that it was stopped
+    alive = []
+    for name, pid in started.items():
+        try:
+            os.killpg(pid, 0)
+            alive.append(name)
+        except ProcessLookupError:
+            pass
+    assert not alive, f"still running after SIGTERM: {alive}"

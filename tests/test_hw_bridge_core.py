@@ -15,19 +15,7 @@ from a1_common.robot import a1
 from a1_hw_bridge.bridge import BridgeConfig, BridgeLogic, HardwareBridge, Phase
 from a1_hw_bridge.contacts import FootContactCalibrator
 from a1_hw_bridge.link import RobotLink
-from a1_hw_bridge.protocol import (
-    IDLE_MODE,
-    POS_STOP_F,
-    SERVO_MODE,
-    VEL_STOP_F,
-    Header,
-    LowCmd,
-    LowState,
-    pack_low_cmd,
-    pack_low_state,
-    unpack_low_cmd,
-    unpack_low_state,
-)
+from a1_hw_bridge.protocol import pack_low_cmd, pack_low_state, unpack_low_cmd, unpack_low_state
 from a1_hw_bridge.robot_io import (
     joint_command_from_low_cmd,
     low_cmd_from_joint_command,
@@ -38,25 +26,27 @@ from a1_hw_bridge.robot_io import (
 from a1_hw_bridge.virtual_a1 import VirtualA1, VirtualA1Config, VirtualA1Server
 from a1_sim_bridge.sim import SensorReadings, SimConfig
 
+from a1_hw_bridge import protocol as wire
+
 ROBOT = a1()
 NOMINAL = ROBOT.nominal_joint_angles
 LYING = np.tile([0.0, 1.2, -2.65], 4)  # legs folded, inside the joint limits
 LIMITS = (ROBOT.joint_lower_limits, ROBOT.joint_upper_limits)
 
 
-def state(q: np.ndarray, foot_force=(100, 110, 120, 130), tick: int = 0) -> LowState:
-    s = LowState(tick=tick)
+def state(q: np.ndarray, foot_force=(100, 110, 120, 130), tick: int = 0) -> wire.LowState:
+    s = wire.LowState(tick=tick)
     s.q[:12] = q
     s.foot_force = np.array(foot_force)
     return s
 
 
-def sent(logic: BridgeLogic, now: float) -> LowCmd:
+def sent(logic: BridgeLogic, now: float) -> wire.LowCmd:
     return unpack_low_cmd(logic.motor_command(now))
 
 
-def assert_damping(cmd: LowCmd) -> None:
-    assert np.all(cmd.mode[:12] == SERVO_MODE) and np.all(cmd.mode[12:] == IDLE_MODE)
+def assert_damping(cmd: wire.LowCmd) -> None:
+    assert np.all(cmd.mode[:12] == wire.SERVO_MODE) and np.all(cmd.mode[12:] == wire.IDLE_MODE)
     assert not cmd.kp.any() and not cmd.dq.any() and not cmd.tau.any()
     assert np.all(cmd.kd[:12] == ROBOT.damping_kd) and not cmd.kd[12:].any()
 
@@ -134,11 +124,11 @@ def test_damping_on_the_wire_damps_on_the_robot():
 
 
 def test_robot_side_sentinels_and_idle_mode():
-    low = LowCmd(mode=np.full(20, SERVO_MODE), q=np.full(20, 0.5), dq=np.full(20, 1.0), kp=np.full(20, 10.0),
+    low = wire.LowCmd(mode=np.full(20, wire.SERVO_MODE), q=np.full(20, 0.5), dq=np.full(20, 1.0), kp=np.full(20, 10.0),
                  kd=np.full(20, 2.0), tau=np.full(20, 1.0))
-    low.q[0] = POS_STOP_F  # no position term on motor 0
-    low.dq[1] = VEL_STOP_F  # no velocity term on motor 1
-    low.mode[2] = IDLE_MODE  # motor 2 idle: no torque at all
+    low.q[0] = wire.POS_STOP_F  # no position term on motor 0
+    low.dq[1] = wire.VEL_STOP_F  # no velocity term on motor 1
+    low.mode[2] = wire.IDLE_MODE  # motor 2 idle: no torque at all
     robot_side = joint_command_from_low_cmd(unpack_low_cmd(pack_low_cmd(low, position_limits=None)))
     q, dq = np.zeros(12), np.full(12, 0.5)
     tau = robot_side.motor_torques(q, dq, 33.5, 0.0)
@@ -259,7 +249,7 @@ def test_virtual_a1_drops_bad_datagrams_and_refuses_gains_its_motors_cannot_mode
         corrupt = bytearray(good)
         corrupt[100] ^= 0x10
         assert not robot.receive(bytes(corrupt)) and not robot.receive(good[:600])
-        assert not robot.receive(pack_low_cmd(LowCmd(header=Header(level_flag=0)), position_limits=None))
+        assert not robot.receive(pack_low_cmd(wire.LowCmd(header=wire.Header(level_flag=0)), position_limits=None))
         assert not robot.receive(command_packet(JointCommand.hold(ROBOT), kd_override=500.0))  # wire ok, kd > 100
         assert robot.counters.commands_refused == 1 and "kd" in robot.last_error
         assert (robot.stats.bad_crc, robot.stats.wrong_size, robot.stats.bad_level) == (1, 1, 1)
@@ -268,7 +258,7 @@ def test_virtual_a1_drops_bad_datagrams_and_refuses_gains_its_motors_cannot_mode
         first = unpack_low_state(robot.tick())
         second = unpack_low_state(robot.tick())
         assert (first.tick, second.tick) == (2000, 4000)  # the robot's clock [us], 2 ms per tick
-        assert np.all(second.mode[:12] == SERVO_MODE)
+        assert np.all(second.mode[:12] == wire.SERVO_MODE)
     finally:
         robot.close()
 
@@ -310,7 +300,7 @@ def test_virtual_a1_realtime_streams_states_at_500_hz_then_damps(shared_sim_conf
         steps = np.diff(ticks)
         assert len(ticks) > 150, f"only {len(ticks)} states in 0.6 s"
         assert np.all(steps == 2000), "states skipped or repeated"
-        assert modes[0] == SERVO_MODE and modes[-1] == IDLE_MODE  # damped after 100 ms without commands
+        assert modes[0] == wire.SERVO_MODE and modes[-1] == wire.IDLE_MODE  # damped after 100 ms without commands
         assert robot.counters.command_loss_fallbacks == 1
     finally:
         link.close()

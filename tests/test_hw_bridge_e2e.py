@@ -16,9 +16,8 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from graph_helpers import CONFIG, Graph
-from rclpy.executors import SingleThreadedExecutor
 from ros_helpers import spin_until
-from test_graph_e2e import DAMPING_KD, Watcher, run_until
+from test_graph_e2e import DAMPING_KD, graph, run_until  # noqa: F401 (graph: the fixture)
 
 STAND_UP_DONE = 2.5  # [s] robot time: bridge stand-up 1.5 s, then the controller's 1 s stand ramp
 
@@ -27,19 +26,6 @@ def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-class DiagnosticsWatcher(Watcher):
-    """The e2e watcher, plus the latest /diagnostics values of each status."""
-
-    def __init__(self, context) -> None:
-        super().__init__(context)
-        self.diagnostics: dict[str, dict[str, str]] = {}
-        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
-
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
 
 
 def start_hil_graph(g: Graph, packet_loss: float, lockstep_timeout: float = 0.5) -> None:
@@ -57,22 +43,38 @@ def start_hil_graph(g: Graph, packet_loss: float, lockstep_timeout: float = 0.5)
             str(CONFIG / "gait_policy.yaml"), "-p", "use_sim_time:=true")
 
 
+def first_damped_tick(joints: list[tuple[float, np.ndarray, np.ndarray]], after: float) -> float | None:
+    """Time of the first state after ``after`` whose reported torques are the damping law's.
+
+    Over a tick the motors apply -kd * (velocity at its start); the robot reports it as tauEst,
+    to the wire's resolution (1/256 N m, float32 velocities).
+    """
+    times = np.array([t for t, _, _ in joints])
+    velocity = np.array([v for _, v, _ in joints])
+    effort = np.array([e for _, _, e in joints])
+    damping = np.clip(-DAMPING_KD * velocity[:-1], -33.5, 33.5)
+    damped = np.all(np.abs(effort[1:] - damping) <= 4e-3, axis=1) & (times[1:] > after)
+    hits = np.flatnonzero(damped)
+    return float(times[1:][hits[0]]) if hits.size else None
+
+
 @pytest.fixture
-def hil(tmp_path, rclpy_context):
-    g = Graph(tmp_path)
-    watcher = DiagnosticsWatcher(rclpy_context)
-    executor = SingleThreadedExecutor(context=rclpy_context)
-    executor.add_node(watcher)
-    yield g, watcher, executor
-    g.stop()
-    executor.shutdown()
-    watcher.destroy_node()
+def hil(request):
+    """The e2e graph fixture (process graph, watcher node, executor), plus the latest /diagnostics by name."""
+    g, watcher, executor = request.getfixturevalue("graph")
+    diagnostics: dict[str, dict[str, str]] = {}
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        diagnostics.update({s.name: {kv.key: kv.value for kv in s.values} for s in msg.status})
+
+    watcher.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
+    return g, watcher, executor, diagnostics
 
 
 @pytest.mark.ros
 @pytest.mark.slow
 def test_hil_walks_1_mps_then_damps_within_50_ms_of_controller_death(hil):
-    g, watcher, executor = hil
+    g, watcher, executor, diagnostics = hil
     start_hil_graph(g, packet_loss=0.0, lockstep_timeout=0.05)
     watcher.speed = 1.0
     run_until(executor, watcher, g, 7.5, wall_timeout=300)
@@ -84,8 +86,8 @@ def test_hil_walks_1_mps_then_damps_within_50_ms_of_controller_death(hil):
     # The foot contacts were recalibrated from the scheduled swings: the unloaded reading the bridge
     # learned is the virtual sensor's offset (15 raw units in config/virtual_a1.yaml), a little above
     # because a scheduled swing also holds the last moments of ground contact after lift-off is due.
-    assert spin_until(executor, lambda: "a1_hw_bridge" in watcher.diagnostics, 5.0)
-    bridge = watcher.diagnostics["a1_hw_bridge"]
+    assert spin_until(executor, lambda: "a1_hw_bridge" in diagnostics, 5.0)
+    bridge = diagnostics["a1_hw_bridge"]
     assert int(bridge["swing_calibrations"]) > 20
     unloaded = np.array(json.loads(bridge["foot_unloaded_readings"]))
     assert np.all((unloaded >= 15.0) & (unloaded < 18.0)), unloaded
@@ -94,13 +96,7 @@ def test_hil_walks_1_mps_then_damps_within_50_ms_of_controller_death(hil):
     killed_at = watcher.sim_time()
     run_until(executor, watcher, g, killed_at + 0.1, wall_timeout=60)
     last_command = max(watcher.commands)
-    # Damping signature in what the robot reports: tauEst over a tick = -kd * (velocity at its start),
-    # to the wire's resolution (1/256 N m, float32 velocities).
-    damping_start = None
-    for (_, dq0, _), (t1, _, tau1) in zip(watcher.joints, watcher.joints[1:], strict=False):
-        if t1 > last_command and np.allclose(tau1, np.clip(-DAMPING_KD * dq0, -33.5, 33.5), atol=4e-3):
-            damping_start = t1
-            break
+    damping_start = first_damped_tick(watcher.joints, after=last_command)
     assert damping_start is not None, "the bridge never sent damping"
     assert damping_start - last_command <= 0.05 + 1e-9, f"damping {damping_start - last_command:.3f} s after"
     print(f"HIL: mean speed {speed:.3f} m/s at 6.5-7.5 s; damping {1e3 * (damping_start - last_command):.0f} ms "
@@ -110,7 +106,7 @@ def test_hil_walks_1_mps_then_damps_within_50_ms_of_controller_death(hil):
 @pytest.mark.ros
 @pytest.mark.slow
 def test_hil_5_percent_packet_loss_does_not_fall(hil):
-    g, watcher, executor = hil
+    g, watcher, executor, diagnostics = hil
     start_hil_graph(g, packet_loss=0.05)
     watcher.speed = 1.0
     run_until(executor, watcher, g, 6.0, wall_timeout=300)  # 2.5 s at 1.0 m/s (reached at about 3.5 s)
@@ -118,8 +114,8 @@ def test_hil_5_percent_packet_loss_does_not_fall(hil):
     speed = watcher.mean_speed(5.0, 6.0)
     assert speed > 0.85, f"walked at {speed:.2f} m/s only"
     # The losses really happened, in both directions, and the bridge saw the lost states.
-    assert spin_until(executor, lambda: {"virtual_a1", "a1_hw_bridge"} <= set(watcher.diagnostics), 5.0)
-    robot, bridge = watcher.diagnostics["virtual_a1"], watcher.diagnostics["a1_hw_bridge"]
+    assert spin_until(executor, lambda: {"virtual_a1", "a1_hw_bridge"} <= set(diagnostics), 5.0)
+    robot, bridge = diagnostics["virtual_a1"], diagnostics["a1_hw_bridge"]
     ticks = int(robot["ticks"])
     assert 0.03 * ticks < int(robot["commands_lost_injected"]) < 0.07 * ticks
     assert 0.03 * ticks < int(robot["states_lost_injected"]) < 0.07 * ticks

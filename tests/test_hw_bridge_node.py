@@ -16,14 +16,18 @@ import time
 import numpy as np
 import pytest
 from a1_common.command import JointCommand
+from a1_common.config import ConfigError
 from a1_common.robot import a1
+from a1_hw_bridge.node import HardwareBridgeNode
 from a1_hw_bridge.protocol import IDLE_MODE, SERVO_MODE, LowCmd, LowState, pack_low_state, unpack_low_cmd
+from a1_hw_bridge.virtual_a1_node import VirtualA1Node
 from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
 from a1_sim_bridge.node import CONTROL_QOS
 from diagnostic_msgs.msg import DiagnosticArray
 from graph_helpers import CONFIG, Graph
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from ros_helpers import spin_until
 from sensor_msgs.msg import Imu, JointState
 
@@ -203,3 +207,27 @@ def test_realtime_bridge_safe_start_topics_commands_and_damping_within_50_ms(scr
     assert d["phase"] == "running" and d["in_damping"] == "True" and int(d["damping_fallbacks"]) == 1
     assert int(d["commands_rejected"]) == 1 and "kd[3]" in d["last_rejection"]
     assert int(d["states_dropped_bad_crc"]) == 1 and int(d["states_dropped_wrong_size"]) == 1
+
+
+@pytest.mark.ros
+def test_nodes_refuse_bad_and_runtime_parameter_changes(rclpy_context):
+    with pytest.raises(ConfigError, match=r"clock_mode must be one of \['realtime', 'lockstep'\], got 'fast'"):
+        HardwareBridgeNode(context=rclpy_context, parameter_overrides=[Parameter("clock_mode", value="fast")])
+    with pytest.raises(ConfigError, match=r"unknown parameters \['robot_address'\]"):
+        HardwareBridgeNode(context=rclpy_context, parameter_overrides=[Parameter("robot_address", value="x")])
+    with pytest.raises(ConfigError, match=r"packet_loss must be in \[0.0, 1.0\)"):
+        VirtualA1Node(context=rclpy_context, parameter_overrides=[Parameter("packet_loss", value=1.5)])
+    bridge = HardwareBridgeNode(context=rclpy_context, parameter_overrides=[
+        Parameter("robot_ip", value="127.0.0.1"), Parameter("local_ip", value="127.0.0.1"),
+        Parameter("local_port", value=0)])
+    robot = VirtualA1Node(context=rclpy_context, parameter_overrides=[Parameter("port", value=0),
+                                                                      Parameter("settle_time", value=0.0)])
+    try:
+        for node, name, value in ((bridge, "robot_ip", "192.168.123.11"), (robot, "packet_loss", 0.5)):
+            result = node.set_parameters([Parameter(name, value=value)])[0]
+            assert not result.successful and "cannot change at runtime" in result.reason
+            assert node.get_parameter(name).value != value
+    finally:
+        for node in (bridge, robot):
+            node.shutdown()
+            node.destroy_node()

@@ -42,7 +42,7 @@ from a1_common.robot import A1Constants, a1
 from a1_sim_bridge.sim import SensorReadings
 
 from a1_hw_bridge.contacts import FootContactCalibrator
-from a1_hw_bridge.link import RobotLink
+from a1_hw_bridge.link import Pacer, RobotLink
 from a1_hw_bridge.protocol import (
     DEFAULT_LOCAL_PORT,
     DEFAULT_ROBOT_IP,
@@ -203,7 +203,6 @@ class BridgeCounters:
     lockstep_timeouts: int = 0  # lockstep: no controller command within lockstep_timeout
     late_commands: int = 0  # commands stamped for another step (lockstep) or too old (realtime)
     published: int = 0
-    realtime_overruns: int = 0
 
 
 class HardwareBridge:
@@ -235,6 +234,7 @@ class HardwareBridge:
         self._last_tick = None
         self.link = RobotLink(self.config.robot_ip, self.config.robot_port, self.config.local_ip,
                               self.config.local_port)
+        self.pacer = Pacer(self.config.control_period)  # realtime mode: the command period
         self._thread = threading.Thread(target=self._run, name="a1_link", daemon=True)
 
     # --- called from other threads (the node's callbacks) ----------------------------------------
@@ -298,7 +298,7 @@ class HardwareBridge:
                 "damping_fallbacks": wd.timeouts, "in_damping": wd.in_fallback and wd.accepted > 0,
                 "late_commands": self.counters.late_commands, "state_timeouts": self.counters.state_timeouts,
                 "lockstep_timeouts": self.counters.lockstep_timeouts, "packing_errors": logic.packing_errors,
-                "realtime_overruns": self.counters.realtime_overruns,
+                "realtime_overruns": self.pacer.overruns,
                 "contact_thresholds": np.round(logic.contacts.thresholds, 1).tolist(),
                 "foot_unloaded_readings": np.round(logic.contacts.unloaded, 1).tolist(),
                 "swing_calibrations": logic.contacts.swing_calibrations,
@@ -317,21 +317,16 @@ class HardwareBridge:
             traceback.print_exc()
 
     def _run_realtime(self) -> None:
-        period = self.config.control_period
-        next_send = time.monotonic()
+        """Send every control period; between sends, publish each state as it arrives."""
         while self._running:
-            state = self.link.receive(next_send - time.monotonic())
+            state = self.link.receive(self.pacer.remaining())
             if state is not None:
                 self._handle_state(state, self._clock_ns(), time.monotonic())
-            now = time.monotonic()
-            if now >= next_send:
+            if self.pacer.remaining() <= 0:
                 with self._lock:
-                    packet = self.logic.motor_command(now)
+                    packet = self.logic.motor_command(time.monotonic())
                 self.link.send(packet)
-                next_send += period
-                if now - next_send > 0.1:  # far behind (suspended): do not try to catch up
-                    self.counters.realtime_overruns += 1
-                    next_send = now
+                self.pacer.advance()
 
     def _run_lockstep(self) -> None:
         with self._lock:

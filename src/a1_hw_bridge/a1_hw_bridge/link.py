@@ -10,11 +10,14 @@ from __future__ import annotations
 import select
 import socket
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 from a1_hw_bridge.protocol import LowCmd, LowState, ProtocolError, unpack_low_cmd, unpack_low_state
 
 MAX_DATAGRAM = 2048  # [bytes] larger than any A1 datagram, so an oversized one is seen whole
+T = TypeVar("T")
 
 
 @dataclass
@@ -69,6 +72,48 @@ def accept_command(data: bytes, stats: LinkStats) -> LowCmd | None:
     return cmd
 
 
+def _drain(receive: Callable[[], T]) -> list[T]:
+    """Every datagram queued on a non-blocking socket (``receive`` reads one)."""
+    datagrams = []
+    while True:
+        try:
+            datagrams.append(receive())
+        except (BlockingIOError, InterruptedError):
+            return datagrams
+
+
+class Pacer:
+    """Deadlines every ``period`` seconds of the monotonic clock, for a fixed-rate loop.
+
+    A late deadline is counted (``overruns``); after a stall of more than 0.1 s (a suspended
+    process) the schedule restarts from now instead of rushing through the missed periods.
+    """
+
+    def __init__(self, period: float) -> None:
+        self.period = period
+        self.deadline = time.monotonic()
+        self.overruns = 0
+
+    def remaining(self) -> float:
+        """Seconds until the current deadline (negative once it has passed)."""
+        return self.deadline - time.monotonic()
+
+    def advance(self) -> None:
+        """Move to the next deadline."""
+        self.deadline += self.period
+        late = -self.remaining()
+        if late > 0:
+            self.overruns += 1
+            if late > 0.1:
+                self.deadline = time.monotonic()
+
+    def sleep(self) -> None:
+        """Sleep until the current deadline."""
+        remaining = self.remaining()
+        if remaining > 0:
+            time.sleep(remaining)
+
+
 class RobotLink:
     """The client end: sends LowCmd datagrams to the robot, returns the newest valid LowState."""
 
@@ -113,15 +158,11 @@ class RobotLink:
                 return newest
 
     def _drain(self) -> list[bytes]:
-        datagrams = []
-        while True:
-            try:
-                datagrams.append(self._sock.recv(MAX_DATAGRAM))
-            except (BlockingIOError, InterruptedError):
-                return datagrams
-            except ConnectionRefusedError:  # ICMP: nothing listens at the robot's address (yet)
-                self.stats.send_errors += 1
-                return datagrams
+        try:
+            return _drain(lambda: self._sock.recv(MAX_DATAGRAM))
+        except ConnectionRefusedError:  # ICMP: nothing listens at the robot's address (yet)
+            self.stats.send_errors += 1
+            return []
 
     def close(self) -> None:
         self._sock.close()
@@ -149,14 +190,7 @@ class ServerSocket:
         return bool(ready)
 
     def drain(self) -> list[tuple[bytes, tuple[str, int]]]:
-        datagrams = []
-        while True:
-            try:
-                datagrams.append(self._sock.recvfrom(MAX_DATAGRAM))
-            except (BlockingIOError, InterruptedError):
-                return datagrams
-            except ConnectionRefusedError:  # an ICMP error from an earlier reply: the client went away
-                continue
+        return _drain(lambda: self._sock.recvfrom(MAX_DATAGRAM))
 
     def reply(self, packet: bytes, stats: LinkStats) -> None:
         if self.client is None:

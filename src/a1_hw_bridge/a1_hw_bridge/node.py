@@ -15,6 +15,7 @@ from a1_common.robot import a1
 from a1_sim_bridge.node import CONTROL_QOS
 from a1_sim_bridge.sim import SensorReadings
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
@@ -44,6 +45,7 @@ class HardwareBridgeNode(Node):
         self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS)
         if config.swing_recalibration:
             self.create_subscription(GaitState, "/gait/state", self._on_gait_state, CONTROL_QOS)
+        self.add_on_set_parameters_callback(refuse_runtime_changes)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
             f"A1 link {self.bridge.link.local_address[0]}:{self.bridge.link.local_address[1]} -> "
@@ -97,6 +99,13 @@ class HardwareBridgeNode(Node):
     def shutdown(self) -> None:
         """Stop the link thread; the last datagrams sent put the motors in damping."""
         self.bridge.stop()
+
+
+def refuse_runtime_changes(params) -> SetParametersResult:
+    """Every parameter is read once at start-up: a runtime change is refused, never silently ignored."""
+    names = sorted(p.name for p in params)
+    return SetParametersResult(successful=False,
+                               reason=f"{names} cannot change at runtime: restart the node with the new value")
 
 
 def main(args: list[str] | None = None) -> None:

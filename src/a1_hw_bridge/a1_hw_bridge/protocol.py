@@ -101,7 +101,10 @@ def packet_crc(packet: bytes) -> int:
     return crc32_words(packet[: 4 * (len(packet) // 4 - 1)])
 
 
-def _seal(record: np.ndarray) -> bytes:
+def _seal(record: np.ndarray, wireless_remote: bytes, reserve: int) -> bytes:
+    """Fill the fields both datagrams end with (remote, reserve), then the CRC; the wire bytes."""
+    record["wireless_remote"] = _blob("wireless_remote", wireless_remote, 40)
+    record["reserve"] = _integers("reserve", reserve, 32)
     raw = bytearray(record.tobytes())
     raw[-4:] = packet_crc(bytes(raw)).to_bytes(4, "little")
     return bytes(raw)
@@ -237,9 +240,7 @@ def pack_low_cmd(cmd: LowCmd, *, position_limits: tuple[np.ndarray, np.ndarray] 
     motors["reserve"] = _integers("motor_reserve", _slots("motor_reserve", cmd.motor_reserve,
                                                            (NUM_MOTOR_SLOTS, 3)), 32)
     record["led"] = _integers("led", _slots("led", cmd.led, (12,)), 8)
-    record["wireless_remote"] = _blob("wireless_remote", cmd.wireless_remote, 40)
-    record["reserve"] = _integers("reserve", cmd.reserve, 32)
-    return _seal(record)
+    return _seal(record, cmd.wireless_remote, cmd.reserve)
 
 
 def unpack_low_cmd(data: bytes) -> LowCmd:
@@ -315,9 +316,7 @@ def pack_low_state(state: LowState, *, clip: bool = False) -> bytes:
         record[name] = _scaled_int16(name, _slots(name, getattr(state, name), (4,)), 1.0, clip=clip,
                                      rounding="round")
     record["tick"] = _integers("tick", state.tick, 32)
-    record["wireless_remote"] = _blob("wireless_remote", state.wireless_remote, 40)
-    record["reserve"] = _integers("reserve", state.reserve, 32)
-    return _seal(record)
+    return _seal(record, state.wireless_remote, state.reserve)
 
 
 def unpack_low_state(data: bytes) -> LowState:

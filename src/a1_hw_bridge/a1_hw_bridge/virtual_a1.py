@@ -24,7 +24,6 @@ Undocumented robot behaviour, made settings (see docs/hardware.md):
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -33,7 +32,7 @@ from a1_common.command import CommandError, JointCommand
 from a1_common.config import ConfigError, require_range
 from a1_sim_bridge.sim import A1Sim, SimConfig
 
-from a1_hw_bridge.link import LinkStats, ServerSocket, accept_command
+from a1_hw_bridge.link import LinkStats, Pacer, ServerSocket, accept_command
 from a1_hw_bridge.protocol import DEFAULT_ROBOT_PORT, IDLE_MODE, NUM_ROBOT_MOTORS, pack_low_state
 from a1_hw_bridge.robot_io import joint_command_from_low_cmd, low_state_from_readings
 
@@ -153,7 +152,7 @@ class VirtualA1Server:
         self.socket = ServerSocket(robot.config.host, robot.config.port)
         self._on_tick = on_tick
         self._running = threading.Event()
-        self.overruns = 0
+        self.pacer = Pacer(robot.sim.config.time_step)  # realtime mode: the robot's 500 Hz loop
 
     @property
     def address(self) -> tuple[str, int]:
@@ -185,20 +184,12 @@ class VirtualA1Server:
             self._on_tick()
 
     def _serve_realtime(self) -> None:
-        period = self.robot.sim.config.time_step
-        next_tick = time.monotonic()
         while self._running.is_set():
             for datagram, sender in self.socket.drain():
                 self._take(datagram, sender)
             self._tick()
-            next_tick += period
-            delay = next_tick - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            else:
-                self.overruns += 1
-                if delay < -0.1:  # far behind: do not try to catch up
-                    next_tick = time.monotonic()
+            self.pacer.advance()
+            self.pacer.sleep()
 
     def _serve_lockstep(self) -> None:
         while self._running.is_set():

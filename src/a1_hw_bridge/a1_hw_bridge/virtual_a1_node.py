@@ -18,6 +18,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
+from a1_hw_bridge.node import refuse_runtime_changes
 from a1_hw_bridge.virtual_a1 import VirtualA1, VirtualA1Config, VirtualA1Server
 from a1_sim_bridge import conversions as cv
 
@@ -38,6 +39,7 @@ class VirtualA1Node(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.server = VirtualA1Server(self.robot, on_tick=self._on_tick)
         self.failure: Exception | None = None
+        self.add_on_set_parameters_callback(refuse_runtime_changes)
         self.create_timer(1.0, self._publish_diagnostics)
         host, port = self.server.address
         self.get_logger().info(
@@ -73,7 +75,7 @@ class VirtualA1Node(Node):
             "dropped_bad_crc": s.bad_crc, "dropped_not_low_level": s.bad_level, "states_sent": s.sent,
             "commands_lost_injected": c.commands_lost, "states_lost_injected": c.states_lost,
             "commands_refused": c.commands_refused, "last_refusal": r.last_error,
-            "command_loss_fallbacks": c.command_loss_fallbacks, "realtime_overruns": self.server.overruns,
+            "command_loss_fallbacks": c.command_loss_fallbacks, "realtime_overruns": self.server.pacer.overruns,
         }
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         self.pub_diag.publish(DiagnosticArray(status=[status]))
