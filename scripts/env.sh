@@ -17,8 +17,31 @@ export GAIT_STACK_ROOT="$_gs_root"
 # The offline tools (train_es, eval_policy, sweep_gaits, velocity_command) by name, as without ROS.
 export PATH="$_gs_root/install/gait_policy_node/lib/gait_policy_node:$PATH"
 unset _gs_root _gs_nounset
-# Keep DDS discovery on this host unless the user chose otherwise (the robot's network is
-# configured explicitly when a hardware bridge runs).
+# Isolation (docs/reliability.md): the stack's own DDS domain and discovery on this host only,
+# unless the user chose otherwise, so that a run here never talks to another run or to a robot's
+# network. To join other machines (a real robot), set both before sourcing this file, e.g.
+#   ROS_DOMAIN_ID=0 ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET source scripts/env.sh
+# (The test suite picks a private domain per run by itself: see tests/conftest.py.)
+GAIT_STACK_DEFAULT_DOMAIN_ID=42
+export GAIT_STACK_DEFAULT_DOMAIN_ID
+export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$GAIT_STACK_DEFAULT_DOMAIN_ID}"
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+case "$ROS_DOMAIN_ID" in
+  *[!0-9]*) _gs_bad_domain=1 ;;
+  *) [ "${#ROS_DOMAIN_ID}" -le 3 ] && [ "$((10#$ROS_DOMAIN_ID))" -le 232 ] && _gs_bad_domain=0 || _gs_bad_domain=1 ;;
+esac
+if [ "$_gs_bad_domain" = 1 ]; then
+  echo "env.sh: ROS_DOMAIN_ID must be an integer in [0, 232] (0-101 are safe on Linux), got '$ROS_DOMAIN_ID'" >&2
+  unset _gs_bad_domain
+  return 1 2>/dev/null || exit 1
+fi
+unset _gs_bad_domain
+export ROS_DOMAIN_ID="$((10#$ROS_DOMAIN_ID))"  # 042 -> 42
+case "$ROS_AUTOMATIC_DISCOVERY_RANGE" in
+  LOCALHOST|SUBNET|OFF|SYSTEM_DEFAULT) ;;
+  *) echo "env.sh: ROS_AUTOMATIC_DISCOVERY_RANGE must be one of LOCALHOST, SUBNET, OFF, SYSTEM_DEFAULT;" \
+          "got '$ROS_AUTOMATIC_DISCOVERY_RANGE'" >&2
+     return 1 2>/dev/null || exit 1 ;;
+esac
 # The controller's matrices are tiny: multithreaded BLAS only adds overhead and jitter.
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}"

@@ -1,14 +1,86 @@
-"""Shared fixtures. ROS tests run on a private DDS domain so parallel runs do not talk."""
+"""Shared fixtures. ROS tests run on a private DDS domain so parallel runs do not talk.
+
+Isolation (docs/reliability.md): before rclpy is imported anywhere, this process claims a DDS
+domain that no other test run on this machine holds (a lock file per domain in the temp folder,
+held until the process ends) and keeps discovery on this host. Child processes (bringup.sh, nodes)
+inherit both. The shell's ROS_DOMAIN_ID is deliberately not used: a shell set up for a real
+robot must not put the tests on the robot's domain. Pin the test domain with
+GAIT_STACK_TEST_DOMAIN_ID=<0..232> if needed.
+
+Property tests (tests/test_fuzz_*.py) run under the hypothesis profile "ci": derandomized, no
+example database, no deadline, so CI never flakes; GAIT_STACK_HYPOTHESIS_PROFILE=thorough tries
+20x more (random) examples. The number of cases each fuzz target tried is printed at the end.
+"""
 
 from __future__ import annotations
 
+import collections
+import fcntl
 import os
+import tempfile
+from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
 
-# A domain per test process, set before rclpy is imported anywhere.
-os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
-os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+SCRIPTS_DEFAULT_DOMAIN_ID = 42  # scripts/env.sh's default: tests never use it unless pinned
+_domain_lock = None  # the open lock file of the claimed domain, kept for the process's lifetime
+
+
+def _claim_domain_id() -> int:
+    """A DDS domain in [1, 100] that no other process holding these locks uses, else pid-derived."""
+    global _domain_lock
+    pinned = os.environ.get("GAIT_STACK_TEST_DOMAIN_ID", "").strip()
+    if pinned:
+        if not pinned.isdigit() or int(pinned) > 232:
+            raise pytest.UsageError(f"GAIT_STACK_TEST_DOMAIN_ID must be an integer in [0, 232], got {pinned!r}")
+        return int(pinned)
+    candidates = [d for d in range(1, 101) if d != SCRIPTS_DEFAULT_DOMAIN_ID]
+    start = os.getpid() % len(candidates)
+    for i in range(len(candidates)):
+        domain = candidates[(start + i) % len(candidates)]
+        try:
+            lock = open(Path(tempfile.gettempdir()) / f"gait_stack_ros_domain_{domain}.lock", "a")
+        except OSError:  # another user's lock file
+            continue
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            lock.close()
+            continue
+        _domain_lock = lock
+        return domain
+    return candidates[start]
+
+
+# Before rclpy is imported anywhere.
+os.environ["ROS_DOMAIN_ID"] = str(_claim_domain_id())
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+for _var in ("ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY"):  # static peers would reach past localhost
+    os.environ.pop(_var, None)
+
+settings.register_profile("ci", derandomize=True, database=None, deadline=None, max_examples=60,
+                          print_blob=True, suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile("thorough", settings.get_profile("ci"), derandomize=False, max_examples=1200)
+settings.load_profile(os.environ.get("GAIT_STACK_HYPOTHESIS_PROFILE", "ci"))
+
+_FUZZ_CASES: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+
+
+@pytest.fixture(scope="session")
+def fuzz_cases() -> dict[str, collections.Counter]:
+    """Cases tried per fuzz target, by outcome: ``fuzz_cases["target"]["rejected"] += 1``."""
+    return _FUZZ_CASES
+
+
+def pytest_terminal_summary(terminalreporter) -> None:
+    if not _FUZZ_CASES:
+        return
+    terminalreporter.section("fuzz cases tried")
+    for target, outcomes in sorted(_FUZZ_CASES.items()):
+        detail = ", ".join(f"{k} {v}" for k, v in sorted(outcomes.items()))
+        terminalreporter.write_line(f"{target}: {sum(outcomes.values())} ({detail})")
+    terminalreporter.write_line(f"total: {sum(sum(c.values()) for c in _FUZZ_CASES.values())}")
 
 
 @pytest.fixture

@@ -27,17 +27,26 @@ def load_yaml_mapping(path: str | os.PathLike, allowed_keys: set[str] | None = N
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"cannot read config file {path}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid YAML: nested too deeply") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: top level must be a mapping, got {type(data).__name__}")
     if allowed_keys is not None:
-        unknown = sorted(set(data) - allowed_keys)
+        unknown = sorted_keys(set(data) - allowed_keys)
         if unknown:
             raise ConfigError(f"{path}: unknown keys {unknown}; allowed: {sorted(allowed_keys)}")
     return data
+
+
+def sorted_keys(keys) -> list:
+    """Keys sorted for an error message, whatever their types (YAML keys may be numbers, null...)."""
+    return sorted(keys, key=lambda k: (not isinstance(k, str), repr(k)))
 
 
 def load_node_parameters(path: str | os.PathLike, node_name: str) -> dict[str, Any]:
@@ -75,15 +84,22 @@ def require_range(name: str, value: float, low: float, high: float, *, low_open:
     """Return ``value`` as float if inside the interval, else raise naming the field and range."""
     try:
         v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{name} must be a number, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond any float
+        raise ConfigError(f"{name} must be a number in {'(' if low_open else '['}{low}, {high}"
+                          f"{')' if high_open else ']'}, got {_short(value)}") from None
     lo_ok = v > low if low_open else v >= low
     hi_ok = v < high if high_open else v <= high
     if not (lo_ok and hi_ok) or v != v:
         lb = "(" if low_open else "["
         hb = ")" if high_open else "]"
-        raise ConfigError(f"{name} must be in {lb}{low}, {high}{hb}, got {value!r}")
+        raise ConfigError(f"{name} must be in {lb}{low}, {high}{hb}, got {_short(value)}")
     return v
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    """repr() of a rejected value, cut short so a huge one cannot flood a log line."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 def _kind(value: Any) -> str:
@@ -110,7 +126,7 @@ def dataclass_from_mapping(cls: type, data: Any, where: str) -> Any:
         raise ConfigError(f"{where} must be a mapping, got {type(data).__name__}")
     template = cls()
     names = [f.name for f in dataclasses.fields(cls)]
-    unknown = sorted(set(data) - set(names))
+    unknown = sorted_keys(set(data) - set(names))
     if unknown:
         raise ConfigError(f"{where}: unknown keys {unknown}; allowed: {names}")
     kwargs = {}
@@ -122,7 +138,7 @@ def dataclass_from_mapping(cls: type, data: Any, where: str) -> Any:
             continue
         expected, got = _kind(default), _kind(value)
         if default is not None and expected != got and not (expected == "a number" and got == "a number"):
-            raise ConfigError(f"{name} must be {expected}, got {value!r}")
+            raise ConfigError(f"{name} must be {expected}, got {_short(value)}")
         kwargs[key] = _tuples(value)
     return cls(**kwargs)
 

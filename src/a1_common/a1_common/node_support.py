@@ -11,7 +11,7 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 
 from a1_common.config import ConfigError
 
@@ -58,6 +58,35 @@ def coerce_parameter(name: str, value: Any, default: Any) -> Any:
             raise ConfigError(f"parameter {name} must be a string, got {value!r}")
         return value
     return value
+
+
+def guard_runtime_parameters(node, defaults: dict[str, Any],
+                             validators: dict[str, Callable[[Any], Any]] | None = None) -> None:
+    """Validate runtime parameter changes (``ros2 param set``) on ``node`` like its start-up values.
+
+    A parameter in ``validators`` is converted to the type of its default, then given to its
+    validator (which raises ConfigError naming the parameter and its range); every other parameter
+    of ``defaults`` is read at start-up only, so changing it is refused rather than silently ignored.
+    rclpy's own parameters (``use_sim_time``) are left to rclpy.
+    """
+    validators = validators or {}
+    runtime = sorted(validators) or "none"
+
+    def on_set(params) -> SetParametersResult:
+        for param in params:
+            if param.name in validators:
+                try:
+                    validators[param.name](coerce_parameter(param.name, param.value, defaults[param.name]))
+                except ConfigError as exc:
+                    return SetParametersResult(successful=False, reason=str(exc))
+            elif param.name in defaults:
+                return SetParametersResult(
+                    successful=False,
+                    reason=f"{param.name} is read at start-up only (restart {node.get_name()} with "
+                           f"-p {param.name}:=<value>); runtime parameters: {runtime}")
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)
 
 
 def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = None) -> None:

@@ -7,6 +7,7 @@ Units are SI; the base frame is the trunk centre-of-mass frame (x forward, y lef
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from functools import lru_cache
@@ -74,7 +75,7 @@ def _array(data: dict, key: str, shape: tuple[int, ...], path: Path) -> np.ndarr
         arr = np.asarray(data[key], dtype=float)
     except KeyError:
         raise ConfigError(f"{path}: missing key '{key}'") from None
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ConfigError(f"{path}: '{key}' must be numbers, got {data[key]!r}") from None
     if arr.shape != shape:
         raise ConfigError(f"{path}: '{key}' must have shape {shape}, got {arr.shape}")
@@ -86,8 +87,12 @@ def _array(data: dict, key: str, shape: tuple[int, ...], path: Path) -> np.ndarr
 
 def _positive(data: dict, key: str, path: Path) -> float:
     value = data.get(key)
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0:
-        raise ConfigError(f"{path}: '{key}' must be a positive number, got {value!r}")
+    try:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < float(value) < math.inf
+    except OverflowError:  # an integer beyond any float
+        ok = False
+    if not ok:
+        raise ConfigError(f"{path}: '{key}' must be a positive finite number, got {value!r}")
     return float(value)
 
 

@@ -44,7 +44,11 @@ class GaitParams:
     def validated(self) -> GaitParams:
         f = require_range("stepping_frequency", self.stepping_frequency, 0.0, MAX_FREQUENCY, low_open=True)
         p = require_range("swing_ratio", self.swing_ratio, 0.0, 1.0, low_open=True, high_open=True)
-        offsets = tuple(float(v) for v in np.asarray(self.phase_offsets, dtype=float).reshape(-1))
+        try:
+            offsets = tuple(float(v) for v in np.asarray(self.phase_offsets, dtype=float).reshape(-1))
+        except (TypeError, ValueError, OverflowError):
+            raise ConfigError(f"phase_offsets must be {NUM_LEGS} numbers in [0, 2pi) (FR, FL, RR, RL), "
+                              f"got {self.phase_offsets!r}") from None
         if len(offsets) != NUM_LEGS:
             raise ConfigError(
                 f"phase_offsets must have {NUM_LEGS} entries (FR, FL, RR, RL), got {len(offsets)}")
@@ -68,6 +72,10 @@ def load_hand_tuned_gaits(path=None) -> dict[str, GaitParams]:
             gaits[name] = GaitParams(**entry).validated()
         except ConfigError as exc:
             raise ConfigError(f"{path}: gait '{name}': {exc}") from None
+    missing = sorted({name for _, name in SPEED_SCHEDULE} - set(gaits))
+    if missing:  # the controller falls back to these by speed: a missing one would fail mid-run
+        raise ConfigError(f"{path}: missing gaits {missing}; the speed schedule needs "
+                          f"{[name for _, name in SPEED_SCHEDULE]}")
     return gaits
 
 

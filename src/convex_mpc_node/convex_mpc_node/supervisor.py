@@ -11,6 +11,11 @@ Library core of the controller node (no ROS): the node only converts messages an
   at ``max_acceleration``, and it falls back to zero after ``cmd_vel_timeout`` (0 = never).
 - Gait: the last valid gait parameters; after ``gait_timeout`` without any, the hand-tuned gaits
   scheduled by speed take over (counted).
+- Bad input never reaches a motor: a step whose observation is mis-sized or not finite (or whose
+  time is not finite) commands damping for that step, state "invalid_input"; a command the
+  controller computes that is not finite or has gains out of range is replaced by damping, state
+  "invalid_command", and the robot stands up again before walking on. Both are counted, with the
+  last reason kept in ``last_rejection``.
 Times are seconds of the controller's clock (sim time under a sim bridge).
 """
 
@@ -20,14 +25,18 @@ import enum
 from dataclasses import dataclass
 
 import numpy as np
-from a1_common.command import JointCommand
+from a1_common.command import MAX_FEEDFORWARD_TORQUE, MAX_KD, MAX_KP, CommandError, JointCommand, MotorMode
 from a1_common.config import ConfigError, require_range
+from a1_common.robot import NUM_JOINTS, NUM_LEGS
 
 from convex_mpc_node.controller import LocomotionController, Observation, VelocityCommand
 from convex_mpc_node.gait import GaitParams, gait_for_speed, load_hand_tuned_gaits
 
 STOOD_UP_JOINT_ERROR = 0.2  # [rad] largest joint error from the nominal pose to start walking
 STOOD_UP_TILT = np.radians(10.0)  # [rad] largest body tilt to start walking
+MIN_QUATERNION_NORM = 0.5  # orientations are normalised; below this norm they are garbage, not noise
+_OBSERVATION_SHAPES = (("joint_position", (NUM_JOINTS,)), ("joint_velocity", (NUM_JOINTS,)), ("orientation", (4,)),
+                       ("angular_velocity", (3,)), ("base_velocity", (3,)))
 
 
 class Mode(enum.Enum):
@@ -49,7 +58,7 @@ class SupervisorConfig:
     max_yaw_rate: float = 2.0  # [rad/s]
 
     def validated(self) -> SupervisorConfig:
-        if self.mode not in {m.value for m in Mode}:
+        if not isinstance(self.mode, str) or self.mode not in {m.value for m in Mode}:
             raise ConfigError(f"mode must be one of {[m.value for m in Mode]}, got {self.mode!r}")
         require_range("stand_time", self.stand_time, 0.0, 10.0)
         require_range("input_timeout", self.input_timeout, 0.0, 10.0, low_open=True)
@@ -80,6 +89,9 @@ class ControllerSupervisor:
         self.rejected_gait_params = 0
         self.gait_fallbacks = 0
         self.safe_stand_steps = 0
+        self.rejected_observations = 0  # steps damped because the observation was unusable
+        self.invalid_commands = 0  # controller outputs replaced by damping
+        self.last_rejection = ""
         self._target = np.zeros(3)  # vx, vy, yaw rate requested
         self._command = np.zeros(3)  # after the acceleration limit
         self._cmd_time = float("-inf")
@@ -95,7 +107,7 @@ class ControllerSupervisor:
     def set_mode(self, mode: str) -> None:
         try:
             self.requested = Mode(mode)
-        except ValueError:
+        except (ValueError, TypeError):
             raise ConfigError(f"mode must be one of {[m.value for m in Mode]}, got {mode!r}") from None
 
     def estop(self) -> None:
@@ -128,7 +140,27 @@ class ControllerSupervisor:
 
     # --- the 500 Hz step -----------------------------------------------------------------------
     def step(self, now: float, obs: Observation, velocity_fresh: bool) -> StepResult:
-        """Command for this step. ``velocity_fresh``: obs.base_velocity is a current estimate."""
+        """Command for this step. ``velocity_fresh``: obs.base_velocity is a current estimate.
+
+        Never returns a command with NaN/inf or out-of-range gains (see the module docstring).
+        """
+        problem = "time is not finite" if not np.isfinite(now) else observation_problem(obs)
+        if problem is not None:
+            self.rejected_observations += 1
+            self.last_rejection = f"observation: {problem}"
+            return StepResult(JointCommand.damping(), "invalid_input", VelocityCommand(*self._command))
+        obs = _normalised(obs)
+        result = self._step(now, obs, velocity_fresh)
+        problem = command_problem(result.command)
+        if problem is not None:
+            self.invalid_commands += 1
+            self.last_rejection = f"{result.state} command: {problem}"
+            self._walking = False  # stand up again (joint PD) before the controller runs anew
+            self._stand_start = None
+            return StepResult(JointCommand.damping(), "invalid_command", result.velocity_command)
+        return result
+
+    def _step(self, now: float, obs: Observation, velocity_fresh: bool) -> StepResult:
         dt = 0.0 if self._last_time is None else max(now - self._last_time, 0.0)
         self._last_time = now
         if velocity_fresh:
@@ -186,3 +218,49 @@ class ControllerSupervisor:
             self.gait_fallbacks += 1
             self._in_fallback_gait = True
         return gait_for_speed(abs(command.vx), self.gaits)
+
+
+def observation_problem(obs: Observation) -> str | None:
+    """Why ``obs`` cannot drive the robot (wrong size, NaN/inf, no rotation), or None if usable."""
+    for name, shape in _OBSERVATION_SHAPES:
+        try:
+            arr = np.asarray(getattr(obs, name), dtype=float)
+        except (TypeError, ValueError, OverflowError):
+            return f"{name} is not numeric"
+        if arr.shape != shape:
+            return f"{name} must have shape {shape}, got {arr.shape}"
+        if not np.isfinite(arr).all():
+            return f"{name} is not finite"
+    if np.shape(obs.foot_contact) != (NUM_LEGS,):
+        return f"foot_contact must have shape ({NUM_LEGS},), got {np.shape(obs.foot_contact)}"
+    norm = float(np.linalg.norm(np.asarray(obs.orientation, dtype=float)))
+    if norm < MIN_QUATERNION_NORM:
+        return f"orientation must be a unit quaternion, got norm {norm:.3g}"
+    return None
+
+
+def _normalised(obs: Observation) -> Observation:
+    """``obs`` as float arrays with a unit orientation quaternion (an already checked observation)."""
+    q = np.asarray(obs.orientation, dtype=float)
+    return Observation(np.asarray(obs.joint_position, dtype=float), np.asarray(obs.joint_velocity, dtype=float),
+                       q / np.linalg.norm(q), np.asarray(obs.angular_velocity, dtype=float),
+                       np.asarray(obs.foot_contact, dtype=bool), np.asarray(obs.base_velocity, dtype=float))
+
+
+def command_problem(command: JointCommand) -> str | None:
+    """Why ``command`` must not reach the motors, or None: JointCommand.validated() with a fast path."""
+    if command.mode == MotorMode.DAMPING:
+        return None
+    arrays = (command.position, command.velocity, command.kp, command.kd, command.torque)
+    if command.mode == MotorMode.HYBRID and all(np.shape(a) == (NUM_JOINTS,) for a in arrays):
+        values = np.concatenate(arrays)
+        n = NUM_JOINTS
+        kp, kd, tau = values[2 * n:3 * n], values[3 * n:4 * n], values[4 * n:]
+        if (np.isfinite(values).all() and 0 <= kp.min() and kp.max() <= MAX_KP and 0 <= kd.min()
+                and kd.max() <= MAX_KD and np.abs(tau).max() <= MAX_FEEDFORWARD_TORQUE):
+            return None
+    try:
+        command.validated()
+    except CommandError as exc:
+        return str(exc)
+    return None

@@ -17,7 +17,9 @@ from __future__ import annotations
 import json
 import math
 import os
+import struct
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +31,8 @@ from gait_policy_node.train_config import ActionConfig, TrainConfig, train_confi
 
 ACTION_SIZE = 8  # f, 3 x sin, 3 x cos, p_swing
 FORMAT_VERSION = 1
+MAX_NPZ_BYTES = 1 << 30  # uncompressed size read_npz accepts by default (training checkpoints)
+MAX_POLICY_BYTES = 64 << 20  # a policy file: the largest network (4096 hidden units) needs about 2 MB
 
 
 def decode_action(a: np.ndarray, cfg: ActionConfig) -> GaitParams:
@@ -143,15 +147,49 @@ def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
         tmp.unlink(missing_ok=True)
 
 
-def read_npz(path: str | os.PathLike, what: str = "file") -> dict[str, np.ndarray]:
-    """All arrays of an ``.npz`` without pickle; unreadable, truncated or pickled files -> ConfigError."""
+def read_npz(path: str | os.PathLike, what: str = "file", max_bytes: int = MAX_NPZ_BYTES) -> dict[str, np.ndarray]:
+    """All arrays of an ``.npz`` without pickle; unreadable, truncated or pickled files -> ConfigError.
+
+    Read member by member with the .npy header checked first, so that neither a header claiming
+    more data than its member holds nor more than ``max_bytes`` in all (uncompressed) can make
+    this allocate memory it never fills; members that are not .npy arrays are refused.
+    """
     try:
-        with np.load(path, allow_pickle=False) as data:
-            return {key: data[key] for key in data.files}
+        with zipfile.ZipFile(path) as archive:
+            infos = archive.infolist()
+            total = sum(info.file_size for info in infos)
+            if total > max_bytes:
+                raise ValueError(f"{total} bytes uncompressed, more than the {max_bytes} allowed")
+            arrays = {}
+            for info in infos:
+                key = info.filename.removesuffix(".npy")
+                if key == info.filename or key in arrays:
+                    raise ValueError(f"member {info.filename!r} is not a .npy array, or a duplicate")
+                arrays[key] = _read_member(archive, info)
+            return arrays
     except FileNotFoundError:
         raise ConfigError(f"{what} {path} does not exist") from None
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, NotImplementedError, RuntimeError,
+            zlib.error, struct.error) as exc:
         raise ConfigError(f"{what} {path} is not a readable .npz without pickled objects ({exc})") from None
+
+
+def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo) -> np.ndarray:
+    """One .npy member, its header checked against the member's size before any allocation."""
+    with archive.open(info) as fh:
+        version = np.lib.format.read_magic(fh)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+        else:
+            raise ValueError(f"member {info.filename!r}: .npy format version {version} is not supported")
+        if dtype.hasobject:
+            raise ValueError(f"member {info.filename!r} holds pickled (object) data")
+        if math.prod(shape) * dtype.itemsize > info.file_size - fh.tell():
+            raise ValueError(f"member {info.filename!r} is truncated: its header announces {shape} {dtype}")
+    with archive.open(info) as fh:
+        return np.lib.format.read_array(fh, allow_pickle=False)
 
 
 def _field(data: dict, key: str, path, kind: str, shape: tuple | None = None) -> np.ndarray:
@@ -169,7 +207,7 @@ def _field(data: dict, key: str, path, kind: str, shape: tuple | None = None) ->
 
 def load_policy(path: str | os.PathLike) -> tuple[NetworkPolicy, TrainConfig]:
     """Read and check a policy file; returns the policy and the training config it was made with."""
-    data = read_npz(path, "policy file")
+    data = read_npz(path, "policy file", MAX_POLICY_BYTES)
     version = int(_field(data, "format_version", path, "i", ()))
     if version != FORMAT_VERSION:
         raise ConfigError(f"policy file {path}: format_version {version}, this code reads {FORMAT_VERSION}")
@@ -177,6 +215,8 @@ def load_policy(path: str | os.PathLike) -> tuple[NetworkPolicy, TrainConfig]:
         config = train_config_from_mapping(json.loads(str(_field(data, "config_json", path, "U", ()))), "config_json")
     except json.JSONDecodeError as exc:
         raise ConfigError(f"policy file {path}: config_json is not JSON ({exc})") from None
+    except RecursionError:
+        raise ConfigError(f"policy file {path}: config_json is nested too deeply") from None
     stored_hash = str(_field(data, "config_hash", path, "U", ()))
     if stored_hash != config.policy_hash():
         raise ConfigError(f"policy file {path}: config_hash {stored_hash} does not match its config_json "

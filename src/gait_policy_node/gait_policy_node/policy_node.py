@@ -5,14 +5,22 @@ The policy comes from the ``policy`` parameter (see policy.make_policy): a learn
 The measured velocity is /odom's twist (base_link frame) turned into the yaw-aligned frame, the
 frame the policy was trained in.
 Runs on sim time under a sim bridge (``use_sim_time``), like the rest of the graph.
+
+Bad input: /cmd_vel and /odom with NaN/inf are ignored (the last good value stays); finite values
+are clamped (documented clamp) to what the controller can ever be asked for, |v_x| <= 5 m/s and
+|v_y| <= 3 m/s desired (the largest max_forward_speed / max_lateral_speed the controller accepts),
+and |v| <= 10 m/s per axis measured (the estimator flags faster estimates as diverging), so
+that no input can drive a policy outside the range it was made for. Gait parameters are
+validated before they are published; an invalid output is dropped and counted (the controller then
+falls back to its hand-tuned gaits). Parameters are read at start-up only: runtime changes are refused.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from a1_common.config import require_range
+from a1_common.config import ConfigError, require_range
 from a1_common.kinematics import quat_to_matrix
-from a1_common.node_support import declare_parameters, run_node
+from a1_common.node_support import declare_parameters, guard_runtime_parameters, run_node
 from a1_sim_bridge.node import CONTROL_QOS
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
@@ -24,16 +32,21 @@ from gait_policy_node.policy import make_policy
 from gait_policy_node.rollout import heading_frame
 
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+PARAMETERS = {"policy": "scheduled", "rate": 20.0, "cmd_vel_stamped": False}
+MAX_DESIRED_VELOCITY = np.array([5.0, 3.0])  # [m/s] x, y: the controller's largest speed limits
+MAX_MEASURED_VELOCITY = 10.0  # [m/s] per axis
 
 
 class GaitPolicyNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("gait_policy", **node_kwargs)
-        params = declare_parameters(self, {"policy": "scheduled", "rate": 20.0, "cmd_vel_stamped": False})
+        params = declare_parameters(self, PARAMETERS)
         rate = require_range("rate", params["rate"], 1.0, 500.0)
         self.policy = make_policy(params["policy"])
         self.desired = np.zeros(2)
         self.measured = np.zeros(3)
+        self.ignored_inputs = 0  # /cmd_vel or /odom messages with NaN/inf or no orientation
+        self.invalid_outputs = 0  # policy outputs outside the gait parameter ranges, not published
         self.pub = self.create_publisher(GaitParamsMsg, "/gait/params", COMMAND_QOS)
         if params["cmd_vel_stamped"]:
             self.create_subscription(TwistStamped, "/cmd_vel", lambda m: self._on_cmd(m.twist), COMMAND_QOS)
@@ -41,12 +54,16 @@ class GaitPolicyNode(Node):
             self.create_subscription(Twist, "/cmd_vel", self._on_cmd, COMMAND_QOS)
         self.create_subscription(Odometry, "/odom", self._on_odom, CONTROL_QOS)
         self.create_timer(1.0 / rate, self._tick)
+        guard_runtime_parameters(self, PARAMETERS)
         self.get_logger().info(f"gait policy '{params['policy']}' at {rate:g} Hz")
 
     def _on_cmd(self, twist: Twist) -> None:
-        values = np.array([twist.linear.x, twist.linear.y])
+        values = np.array([twist.linear.x, twist.linear.y], dtype=float)
         if np.all(np.isfinite(values)):
-            self.desired = values
+            self.desired = np.clip(values, -MAX_DESIRED_VELOCITY, MAX_DESIRED_VELOCITY)
+        else:
+            self.ignored_inputs += 1
+            self.get_logger().warning("ignored /cmd_vel with NaN/inf", throttle_duration_sec=1.0)
 
     def _on_odom(self, msg: Odometry) -> None:
         v = msg.twist.twist.linear  # base_link frame
@@ -56,10 +73,20 @@ class GaitPolicyNode(Node):
         norm = np.linalg.norm(orientation)
         if np.all(np.isfinite(v_body)) and np.isfinite(norm) and norm > 0.5:
             orientation = orientation / norm
+            v_body = np.clip(v_body, -MAX_MEASURED_VELOCITY, MAX_MEASURED_VELOCITY)
             self.measured = heading_frame(orientation).T @ quat_to_matrix(orientation) @ v_body
+        else:
+            self.ignored_inputs += 1
+            self.get_logger().warning("ignored /odom with NaN/inf or without a unit orientation",
+                                      throttle_duration_sec=1.0)
 
     def _tick(self) -> None:
-        params = self.policy(self.desired, self.measured)
+        try:
+            params = self.policy(self.desired, self.measured).validated()
+        except ConfigError as exc:
+            self.invalid_outputs += 1
+            self.get_logger().error(f"policy output not published: {exc}", throttle_duration_sec=1.0)
+            return
         msg = GaitParamsMsg()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = "base_link"

@@ -8,6 +8,7 @@ Defaults are the paper's (Yang et al. 2021, section 4 and appendix C).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import hashlib
 import json
@@ -253,7 +254,7 @@ def parse_override(text: str) -> tuple[list[str], object]:
 
 def apply_overrides(data: dict, overrides: list[str]) -> dict:
     """A copy of the nested mapping ``data`` with each ``section.key=value`` set."""
-    data = json.loads(json.dumps(data))
+    data = copy.deepcopy(data)  # (not a JSON round trip: YAML dates or sets must reach the checks)
     for text in overrides:
         path, value = parse_override(text)
         node = data

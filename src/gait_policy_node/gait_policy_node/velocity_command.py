@@ -7,43 +7,51 @@ Interchangeable with ``ros2 topic pub /cmd_vel geometry_msgs/msg/Twist ...``. Pr
 Time is the node's clock (sim time with use_sim_time), counted from the first tick; nothing but
 zero is sent for the first ``start_delay`` seconds (the controller stands up meanwhile); with
 ``duration`` > 0 it publishes zero and exits after that many seconds.
+Every value is range-checked at start-up (a bad one ends the node with its name and range); the
+parameters are read at start-up only, so runtime changes are refused.
 """
 
 from __future__ import annotations
 
 from a1_common.config import ConfigError, require_range
-from a1_common.node_support import declare_parameters, run_node
+from a1_common.node_support import declare_parameters, guard_runtime_parameters, run_node
 from geometry_msgs.msg import Twist
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 PROFILES = ("constant", "ramp", "steps")
+PARAMETERS = {"profile": "ramp", "speed": 2.5, "lateral": 0.0, "yaw_rate": 0.0, "acceleration": 1.0,
+              "steps": "0:0.0", "rate": 20.0, "duration": 0.0, "start_delay": 0.0}
+MAX_SPEED = 3.0  # [m/s] forward speed of any profile (the controller's default limit)
+MAX_STEP_TIME = 1e6  # [s]
 
 
 def parse_steps(text: str) -> list[tuple[float, float]]:
-    """ "0:0.5,5:1.0" -> [(0.0, 0.5), (5.0, 1.0)], times increasing; ConfigError otherwise."""
+    """ "0:0.5,5:1.0" -> [(0.0, 0.5), (5.0, 1.0)], times increasing; ConfigError otherwise.
+
+    Times must be in [0, 1e6] s and speeds in [-3, 3] m/s, like the ``speed`` parameter.
+    """
     steps = []
-    for item in text.split(","):
+    for i, item in enumerate(text.split(",")):
         try:
             t, v = (float(x) for x in item.split(":"))
         except ValueError:
-            raise ConfigError(f"steps must look like '0:0.5,5:1.0' (time s:speed m/s), got {text!r}") from None
-        steps.append((t, v))
+            raise ConfigError(f"steps must look like '0:0.5,5:1.0' (time s:speed m/s), got {text[:80]!r}") from None
+        steps.append((require_range(f"steps[{i}] time", t, 0.0, MAX_STEP_TIME),
+                      require_range(f"steps[{i}] speed", v, -MAX_SPEED, MAX_SPEED)))
     if [t for t, _ in steps] != sorted(t for t, _ in steps):
-        raise ConfigError(f"steps times must increase, got {text!r}")
+        raise ConfigError(f"steps times must increase, got {text[:80]!r}")
     return steps
 
 
 class VelocityCommandNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("velocity_command", **node_kwargs)
-        p = declare_parameters(self, {"profile": "ramp", "speed": 2.5, "lateral": 0.0, "yaw_rate": 0.0,
-                                      "acceleration": 1.0, "steps": "0:0.0", "rate": 20.0, "duration": 0.0,
-                                      "start_delay": 0.0})
+        p = declare_parameters(self, PARAMETERS)
         if p["profile"] not in PROFILES:
             raise ConfigError(f"profile must be one of {list(PROFILES)}, got {p['profile']!r}")
         self.profile = p["profile"]
-        self.speed = require_range("speed", p["speed"], -3.0, 3.0)
+        self.speed = require_range("speed", p["speed"], -MAX_SPEED, MAX_SPEED)
         self.lateral = require_range("lateral", p["lateral"], -1.0, 1.0)
         self.yaw_rate = require_range("yaw_rate", p["yaw_rate"], -2.0, 2.0)
         self.acceleration = require_range("acceleration", p["acceleration"], 0.0, 20.0, low_open=True)
@@ -55,6 +63,7 @@ class VelocityCommandNode(Node):
         self.pub = self.create_publisher(Twist, "/cmd_vel", reliable)
         self._start = None
         self.create_timer(1.0 / rate, self._tick)
+        guard_runtime_parameters(self, PARAMETERS)
 
     def command_at(self, t: float) -> Twist:
         msg = Twist()
