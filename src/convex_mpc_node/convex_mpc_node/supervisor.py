@@ -34,7 +34,8 @@ from convex_mpc_node.gait import GaitParams, gait_for_speed, load_hand_tuned_gai
 
 STOOD_UP_JOINT_ERROR = 0.2  # [rad] largest joint error from the nominal pose to start walking
 STOOD_UP_TILT = np.radians(10.0)  # [rad] largest body tilt to start walking
-MIN_QUATERNION_NORM = 0.5  # orientations are normalised; below this norm they are garbage, not noise
+# Orientations are normalised; a norm outside this range is garbage, not noise.
+MIN_QUATERNION_NORM, MAX_QUATERNION_NORM = 0.5, 2.0
 _OBSERVATION_SHAPES = (("joint_position", (NUM_JOINTS,)), ("joint_velocity", (NUM_JOINTS,)), ("orientation", (4,)),
                        ("angular_velocity", (3,)), ("base_velocity", (3,)))
 
@@ -233,8 +234,9 @@ def observation_problem(obs: Observation) -> str | None:
             return f"{name} is not finite"
     if np.shape(obs.foot_contact) != (NUM_LEGS,):
         return f"foot_contact must have shape ({NUM_LEGS},), got {np.shape(obs.foot_contact)}"
-    norm = float(np.linalg.norm(np.asarray(obs.orientation, dtype=float)))
-    if norm < MIN_QUATERNION_NORM:
+    with np.errstate(over="ignore"):  # a huge quaternion overflows to inf: refused below
+        norm = float(np.linalg.norm(np.asarray(obs.orientation, dtype=float)))
+    if not MIN_QUATERNION_NORM <= norm <= MAX_QUATERNION_NORM:
         return f"orientation must be a unit quaternion, got norm {norm:.3g}"
     return None
 
