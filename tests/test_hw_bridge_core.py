@@ -350,3 +350,34 @@ def test_bridge_stands_a_dropped_virtual_a1_up_over_udp_in_lockstep():
         assert bridge.link.stats.dropped == 0 and bridge.counters.late_commands == 0
     finally:
         robot.close()
+
+
+def test_a_dead_link_thread_damps_the_motors_and_reports():
+    robot = VirtualA1(VirtualA1Config(port=0, clock_mode="lockstep"), SimConfig(settle_time=0.2))
+    server = VirtualA1Server(robot)
+    thread = threading.Thread(target=server.serve, daemon=True)
+    failures: list[Exception] = []
+
+    def broken_publish(readings: SensorReadings, stamp_ns: int) -> None:
+        raise RuntimeError("publisher gone")
+
+    config = BridgeConfig(robot_ip="127.0.0.1", robot_port=server.address[1], local_ip="127.0.0.1", local_port=0,
+                          clock_mode="lockstep", stand_up_time=0.1, stand_hold_time=0.01)
+    bridge = HardwareBridge(config, publish=broken_publish, clock_ns=time.time_ns, on_failure=failures.append)
+    thread.start()
+    bridge.start()
+    try:
+        deadline = time.monotonic() + 30
+        while not failures and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert failures and isinstance(bridge.failure, RuntimeError) and failures[0] is bridge.failure
+        deadline = time.monotonic() + 5
+        while robot.stats.accepted < bridge.link.stats.sent and time.monotonic() < deadline:
+            time.sleep(0.01)  # let the virtual robot take the last datagrams
+        active = robot.active_command()
+        assert not active.kp.any() and np.all(active.kd == ROBOT.damping_kd)  # the stand-up hold is gone
+    finally:
+        bridge.stop()
+        server.stop()
+        thread.join(timeout=2)
+        robot.close()

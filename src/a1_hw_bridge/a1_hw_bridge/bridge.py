@@ -209,16 +209,18 @@ class HardwareBridge:
     """Runs BridgeLogic against the robot over UDP in its own thread.
 
     ``publish(readings, stamp_ns)`` is called from that thread for every state while RUNNING;
-    ``publish_clock(stamp_ns)`` (lockstep) for every state; ``clock_ns()`` stamps states in realtime.
+    ``publish_clock(stamp_ns)`` (lockstep) for every state; ``clock_ns()`` stamps states in realtime;
+    ``on_failure(exc)`` if the thread dies (after it has sent damping datagrams).
     """
 
     def __init__(self, config: BridgeConfig, publish: Callable[[SensorReadings, int], None],
                  clock_ns: Callable[[], int], publish_clock: Callable[[int], None] | None = None,
-                 robot: A1Constants | None = None) -> None:
+                 robot: A1Constants | None = None, on_failure: Callable[[Exception], None] | None = None) -> None:
         self.config = config.validated()
         self.logic = BridgeLogic(self.config, robot)
         self.counters = BridgeCounters()
         self.failure: Exception | None = None
+        self._on_failure = on_failure
         self._publish = publish
         self._publish_clock = publish_clock
         self._clock_ns = clock_ns
@@ -249,9 +251,12 @@ class HardwareBridge:
             self._lock.notify_all()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
+        self._send_damping()
+        self.link.close()
+
+    def _send_damping(self) -> None:
         for _ in range(STOP_DAMPING_PACKETS):
             self.link.send(self.logic.damping_packet())
-        self.link.close()
 
     def offer_command(self, command: JointCommand, stamp_ns: int) -> str:
         """A controller command computed from the sensors stamped ``stamp_ns``: accepted, rejected or late."""
@@ -312,9 +317,12 @@ class HardwareBridge:
                 self._run_lockstep()
             else:
                 self._run_realtime()
-        except Exception as exc:  # a dead link thread must be loud: the node exits non-zero
+        except Exception as exc:  # a dead link thread must be loud, and leave the motors damped
             self.failure = exc
             traceback.print_exc()
+            self._send_damping()
+            if self._on_failure is not None:
+                self._on_failure(exc)
 
     def _run_realtime(self) -> None:
         """Send every control period; between sends, publish each state as it arrives."""

@@ -41,7 +41,7 @@ class HardwareBridgeNode(Node):
                           if config.clock_mode == "lockstep" else None)
         self.bridge = HardwareBridge(
             config, publish=self._publish, clock_ns=lambda: self.get_clock().now().nanoseconds,
-            publish_clock=self._publish_clock if self.pub_clock is not None else None)
+            publish_clock=self._publish_clock if self.pub_clock is not None else None, on_failure=self._on_failure)
         self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS)
         if config.swing_recalibration:
             self.create_subscription(GaitState, "/gait/state", self._on_gait_state, CONTROL_QOS)
@@ -57,6 +57,10 @@ class HardwareBridgeNode(Node):
     def failure(self) -> Exception | None:
         """Set when the link thread died (run_node then exits non-zero)."""
         return self.bridge.failure
+
+    def _on_failure(self, exc: Exception) -> None:
+        self.get_logger().fatal(f"A1 link thread failed, motors sent to damping, stopping the node: {exc!r}")
+        self.context.try_shutdown()  # ends spin() in main(), which exits non-zero
 
     def _on_command(self, msg: MotorCommand) -> None:
         result = self.bridge.offer_command(cv.joint_command_from_msg(msg), cv.ns_from_stamp(msg.header.stamp))
