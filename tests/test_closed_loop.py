@@ -8,11 +8,14 @@ Estimator accuracy limits (issue 5): forward-velocity RMS error <= 0.10 m/s at 1
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
-from convex_mpc_node.controller import VelocityCommand, swing_curve
+from a1_common.config import ConfigError
+from convex_mpc_node.controller import VelocityCommand, load_controller_config, swing_curve
 from convex_mpc_node.gait import gait_for_speed, load_hand_tuned_gaits
-from gait_policy_node.rollout import ramp_profile, run_closed_loop
+from gait_policy_node.rollout import ClosedLoop, ramp_profile, run_closed_loop
 
 GAITS = load_hand_tuned_gaits()
 
@@ -81,3 +84,26 @@ def test_controller_alone_on_ground_truth_velocity():
     traj = run_closed_loop(fixed("rapid_trot"), ramp_profile(1.5), 6.0, velocity_source="ground_truth")
     assert not traj.fell
     assert traj.mean_velocity(3.0)[0] == pytest.approx(1.5, rel=0.10)
+
+
+@pytest.mark.slow
+def test_mpc_every_third_step_still_trots_and_resolves_on_contact_changes():
+    config = dataclasses.replace(load_controller_config(), mpc_period_steps=3)
+    loop = ClosedLoop(GAITS["rapid_trot"], controller_config=config)
+    solves, speeds = 0, []
+    try:
+        for k in range(3000):  # 6 s
+            loop.step(VelocityCommand(vx=min(1.5, 0.002 * k)))
+            solves += loop.controller.solved_this_step
+            speeds.append(loop.forward_velocity())
+            assert not loop.fallen, f"fell at {loop.sim.time:.2f} s"
+    finally:
+        loop.sim.close()
+    assert np.mean(speeds[-1500:]) == pytest.approx(1.5, rel=0.10)
+    # A third of the steps, plus a re-solve at each of the 4 Hz trot's 8 contact changes per second.
+    assert 1000 <= solves <= 1000 + 8 * 6 + 10
+
+
+def test_mpc_period_steps_is_range_checked():
+    with pytest.raises(ConfigError, match=r"mpc_period_steps must be an integer in \[1, 25\]"):
+        dataclasses.replace(load_controller_config(), mpc_period_steps=0).validated()

@@ -37,7 +37,17 @@ class ControllerConfig:
     # Drift correction: the integrated command-minus-velocity error is clamped to this [m], [rad].
     max_position_error: float = 0.05
     max_yaw_error: float = 0.1
+    # Solve the MPC every this many control steps (1: every step, as the paper); in between, and
+    # never across a change of the measured contact set, the last forces are reused. Larger values
+    # trade force-plan freshness for CPU, for realtime graphs on small computers.
+    mpc_period_steps: int = 1
     mpc: MpcConfig = field(default_factory=MpcConfig)
+
+    def validated(self) -> ControllerConfig:
+        steps = self.mpc_period_steps
+        if not isinstance(steps, int) or isinstance(steps, bool) or not 1 <= steps <= 25:
+            raise ConfigError(f"mpc_period_steps must be an integer in [1, 25], got {steps!r}")
+        return self
 
 
 def controller_parameter_defaults() -> dict:
@@ -64,7 +74,10 @@ def controller_config_from_parameters(params: dict, source: str = "parameters") 
         mpc = MpcConfig(**mpc_args).validated()
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None
-    return ControllerConfig(mpc=mpc, **top_args)
+    try:
+        return ControllerConfig(mpc=mpc, **top_args).validated()
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
 
 
 def load_controller_config(path=None, ignore: frozenset[str] = frozenset()) -> ControllerConfig:
@@ -118,7 +131,7 @@ class LocomotionController:
     def __init__(self, gait: GaitParams, config: ControllerConfig | None = None,
                  robot: A1Constants | None = None) -> None:
         self.robot = robot or a1()
-        self.config = config or load_controller_config()
+        self.config = (config or load_controller_config()).validated()
         self.gait = PhaseIntegrator(gait)
         self.mpc = ConvexMpc(self.config.mpc)
         neutral = self.robot.hip_offsets.copy()
@@ -126,11 +139,14 @@ class LocomotionController:
         neutral[:, 1] += sides * self.robot.hip_link_length  # foot under the hip, zero abduction
         self._neutral_xy = neutral[:, :2]
         self.mpc_fallbacks = 0
-        self.last_solution: MpcSolution | None = None
         self.reset()
 
     def reset(self) -> None:
         self.gait.reset()
+        self.last_solution: MpcSolution | None = None
+        self.solved_this_step = False  # False: the last step reused the previous MPC forces
+        self._steps_since_solve = 0
+        self._solved_contacts = np.zeros(NUM_LEGS, dtype=bool)
         self._position_error = np.zeros(2)  # yaw-aligned frame [m]
         self._yaw_target: float | None = None
         self._was_swing = np.zeros(NUM_LEGS, dtype=bool)
@@ -176,11 +192,19 @@ class LocomotionController:
 
         mpc_cfg = cfg.mpc
         plan = self.gait.contact_schedule(mpc_cfg.horizon, mpc_cfg.step, leg_states=states)
-        solution = self.mpc.solve(
-            MpcState(roll, pitch, height, w_yaw, v_yaw, feet_yaw),
-            MpcCommand(v_cmd, command.yaw_rate, cfg.body_height, self._position_error, yaw_error), plan)
-        self.last_solution = solution
-        self.mpc_fallbacks += solution.fallback
+        self.solved_this_step = (self.last_solution is None or self._steps_since_solve + 1 >= cfg.mpc_period_steps
+                                 or not np.array_equal(plan[0], self._solved_contacts))
+        if self.solved_this_step:
+            solution = self.mpc.solve(
+                MpcState(roll, pitch, height, w_yaw, v_yaw, feet_yaw),
+                MpcCommand(v_cmd, command.yaw_rate, cfg.body_height, self._position_error, yaw_error), plan)
+            self.last_solution = solution
+            self.mpc_fallbacks += solution.fallback
+            self._steps_since_solve = 0
+            self._solved_contacts = plan[0].copy()
+        else:
+            solution = self.last_solution
+            self._steps_since_solve += 1
 
         out = JointCommand()
         jac = leg_jacobians(robot, q)
