@@ -8,8 +8,8 @@ outputs decode into [f, p_swing, theta_FL, theta_RR, theta_RL] as train_config.A
 File: ``.npz`` read with ``allow_pickle=False``. Keys: format_version, kind, observation,
 hidden_units, params, obs_mean, obs_std, frequency_range, swing_ratio_range, offset_prior,
 offset_prior_weight, config_json (the whole training config), config_hash (train_config's
-policy_hash of it), iteration. Anything missing, mis-shaped, non-finite or inconsistent is
-refused with a ConfigError naming the key. The same file is what gait_policy_node loads.
+policy_hash of it), iteration. Anything missing, mis-shaped, non-finite, beyond VALUE_BOUND or
+inconsistent is refused with a ConfigError naming the key. The same file is what gait_policy_node loads.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ ACTION_SIZE = 8  # f, 3 x sin, 3 x cos, p_swing
 FORMAT_VERSION = 1
 MAX_NPZ_BYTES = 1 << 30  # uncompressed size read_npz accepts by default (training checkpoints)
 MAX_POLICY_BYTES = 64 << 20  # a policy file: the largest network (4096 hidden units) needs about 2 MB
+VALUE_BOUND = 1e6  # |weights|, |obs_mean| and 1 / obs_std in a policy file (trained ones are O(1))
 
 
 def decode_action(a: np.ndarray, cfg: ActionConfig) -> GaitParams:
@@ -211,8 +212,11 @@ def load_policy(path: str | os.PathLike) -> tuple[NetworkPolicy, TrainConfig]:
     version = int(_field(data, "format_version", path, "i", ()))
     if version != FORMAT_VERSION:
         raise ConfigError(f"policy file {path}: format_version {version}, this code reads {FORMAT_VERSION}")
+    config_json = str(_field(data, "config_json", path, "U", ()))
     try:
-        config = train_config_from_mapping(json.loads(str(_field(data, "config_json", path, "U", ()))), "config_json")
+        config = train_config_from_mapping(json.loads(config_json), "config_json")
+    except ConfigError as exc:
+        raise ConfigError(f"policy file {path}: {exc}") from None
     except json.JSONDecodeError as exc:
         raise ConfigError(f"policy file {path}: config_json is not JSON ({exc})") from None
     except RecursionError:
@@ -237,9 +241,14 @@ def load_policy(path: str | os.PathLike) -> tuple[NetworkPolicy, TrainConfig]:
     size = OBSERVATION_SIZES[config.env.observation]
     obs_mean = _field(data, "obs_mean", path, "f", (size,))
     obs_std = _field(data, "obs_std", path, "f", (size,))
-    if np.any(obs_std <= 0):
-        raise ConfigError(f"policy file {path}: 'obs_std' must be > 0")
+    # Bounds far outside anything trained, inside which the network cannot overflow to NaN for the
+    # observations the gait policy node feeds it (velocities clamped to 10 m/s).
+    if np.any(obs_std < 1 / VALUE_BOUND) or np.any(obs_std > VALUE_BOUND):
+        raise ConfigError(f"policy file {path}: 'obs_std' must be in [{1 / VALUE_BOUND:g}, {VALUE_BOUND:g}]")
     params = _field(data, "params", path, "f")
+    for key, value in (("obs_mean", obs_mean), ("params", params)):
+        if np.any(np.abs(value) > VALUE_BOUND):
+            raise ConfigError(f"policy file {path}: '{key}' must be in [{-VALUE_BOUND:g}, {VALUE_BOUND:g}]")
     policy = NetworkPolicy(p.kind, config.env.observation, p.hidden_units, p.action, obs_mean=obs_mean,
                            obs_std=obs_std)
     try:
