@@ -31,19 +31,23 @@ class Graph:
         self.procs[name] = proc
         return proc
 
-    def start_stack(self, clock: str = "lockstep", lockstep_timeout: float = 0.5) -> None:
+    def start_stack(self, clock: str = "lockstep", lockstep_timeout: float = 0.5, *controller_params: str) -> None:
+        """Sim bridge, estimator, controller, gait policy; ``controller_params`` are extra ``name:=value``
+        for the controller (with ``embedded_estimator:=true`` no state_estimator process starts)."""
         sim = ["--ros-args", "--params-file", str(CONFIG / "a1_sim_bridge.yaml"), "-p", f"clock_mode:={clock}",
                "-p", f"lockstep_timeout:={lockstep_timeout}"]
         self.start("sim_bridge", "a1_sim_bridge", "sim_bridge", *sim)
-        self.start("state_estimator", "state_estimator_node", "state_estimator", "--ros-args", "--params-file",
-                   str(CONFIG / "state_estimator.yaml"), "-p", "use_sim_time:=true")
-        self.start_controller()
+        if "embedded_estimator:=true" not in controller_params:
+            self.start("state_estimator", "state_estimator_node", "state_estimator", "--ros-args", "--params-file",
+                       str(CONFIG / "state_estimator.yaml"), "-p", "use_sim_time:=true")
+        self.start_controller(*controller_params)
         self.start("gait_policy", "gait_policy_node", "gait_policy", "--ros-args", "--params-file",
                    str(CONFIG / "gait_policy.yaml"), "-p", "use_sim_time:=true")
 
-    def start_controller(self) -> None:
+    def start_controller(self, *params: str) -> None:
+        extra = [a for p in params for a in ("-p", p)]
         self.start("convex_mpc", "convex_mpc_node", "convex_mpc", "--ros-args", "--params-file",
-                   str(CONFIG / "convex_mpc.yaml"), "-p", "use_sim_time:=true")
+                   str(CONFIG / "convex_mpc.yaml"), "-p", "use_sim_time:=true", *extra)
 
     def kill(self, name: str) -> None:
         proc = self.procs.pop(name)

@@ -90,9 +90,11 @@ def run_until(executor, watcher, graph_, sim_time: float, wall_timeout: float) -
 
 @pytest.mark.ros
 @pytest.mark.slow
-def test_cmd_vel_1_mps_walks_within_10_percent(graph):
+@pytest.mark.parametrize("controller_params", [(), ("embedded_estimator:=true", "mpc_period_steps:=2")],
+                         ids=["estimator_node", "embedded_estimator_mpc_every_2nd_step"])
+def test_cmd_vel_1_mps_walks_within_10_percent(graph, controller_params):
     g, watcher, executor = graph
-    g.start_stack()
+    g.start_stack("lockstep", 0.5, *controller_params)
     watcher.speed = 1.0
     run_until(executor, watcher, g, 7.0, wall_timeout=240)
     assert watcher.lowest() > 0.18, "fell"

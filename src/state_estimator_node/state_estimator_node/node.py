@@ -22,77 +22,60 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 
 from gait_msgs.msg import FootContacts
-from state_estimator_node.estimator import EstimatorConfig, SensorSample, VelocityEstimator
+from state_estimator_node.estimator import Estimate, EstimatorConfig, SensorSample, VelocityEstimator
 
 # IMU / contact readings older than this relative to the joint state are not used [s].
 MAX_SENSOR_SKEW = 0.01
 GYRO_VARIANCE = 1e-4  # [(rad/s)^2] reported for the angular part of the twist
 
 
-class StateEstimatorNode(Node):
-    def __init__(self, **node_kwargs) -> None:
-        super().__init__("state_estimator", **node_kwargs)
-        params = declare_parameters(self, parameter_defaults(EstimatorConfig()))
-        for key in ("process_noise", "measurement_noise"):
-            params[key] = tuple(float(v) for v in params[key])
-        self.estimator = VelocityEstimator(EstimatorConfig(**params).validated())
-        self.joint_names = list(self.estimator.robot.joint_names)
-        self._imu: Imu | None = None
-        self._contacts: FootContacts | None = None
-        self._position = np.zeros(2)  # dead-reckoned x, y in odom [m]
-        self._last_ns: int | None = None
-        self._last_wall = float("-inf")
-        self._skewed = 0
-        self._published = 0
-        self.pub_odom = self.create_publisher(Odometry, "/odom", CONTROL_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(Imu, "/imu/data", lambda m: setattr(self, "_imu", m), CONTROL_QOS)
-        self.create_subscription(FootContacts, "/foot_contacts", lambda m: setattr(self, "_contacts", m),
-                                 CONTROL_QOS)
-        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
-        self.create_timer(1.0, self._publish_diagnostics)
+class OdometryFrontend:
+    """One sensor step's messages -> a filter update -> nav_msgs/Odometry. No rclpy Node: shared by
+    the state_estimator node and the convex_mpc node's embedded estimator (one process, no /odom hop)."""
 
-    def _on_joints(self, msg: JointState) -> None:
-        imu, contacts = self._imu, self._contacts
-        now_ns = ns_from_stamp(msg.header.stamp)
-        if imu is None or contacts is None:
-            return  # not all sensors seen yet
+    def __init__(self, config: EstimatorConfig) -> None:
+        self.estimator = VelocityEstimator(config.validated())
+        self.joint_names = list(self.estimator.robot.joint_names)
+        self.position = np.zeros(2)  # dead-reckoned x, y in odom [m]
+        self.last_ns: int | None = None
+        self.skewed = 0
+        self.wrong_names = 0
+
+    def update(self, joints: JointState, imu: Imu, contacts: FootContacts) -> tuple[Estimate, Odometry] | None:
+        """The estimate and /odom for this step, or None when the step is refused (and counted):
+        IMU or contacts more than MAX_SENSOR_SKEW from the joint state, wrong joint names, NaN/inf."""
+        now_ns = ns_from_stamp(joints.header.stamp)
         if (abs(now_ns - ns_from_stamp(imu.header.stamp)) * 1e-9 > MAX_SENSOR_SKEW
                 or abs(now_ns - ns_from_stamp(contacts.header.stamp)) * 1e-9 > MAX_SENSOR_SKEW):
-            self._skewed += 1
-            return
-        if list(msg.name) != self.joint_names:
+            self.skewed += 1
+            return None
+        if list(joints.name) != self.joint_names:
+            self.wrong_names += 1
             self.estimator.rejected_samples += 1
-            self.get_logger().warning("rejected /joint_states: joint names are not the A1's 12 joints "
-                                      "in motor order", throttle_duration_sec=1.0)
-            return
+            return None
         o, w, a = imu.orientation, imu.angular_velocity, imu.linear_acceleration
         sample = SensorSample(
-            time=now_ns * 1e-9, joint_position=np.asarray(msg.position, dtype=float),
-            joint_velocity=np.asarray(msg.velocity, dtype=float), orientation=np.array([o.x, o.y, o.z, o.w]),
+            time=now_ns * 1e-9, joint_position=np.asarray(joints.position, dtype=float),
+            joint_velocity=np.asarray(joints.velocity, dtype=float), orientation=np.array([o.x, o.y, o.z, o.w]),
             angular_velocity=np.array([w.x, w.y, w.z]), linear_acceleration=np.array([a.x, a.y, a.z]),
             foot_contact=np.asarray(contacts.contact, dtype=bool),
             foot_force=np.asarray(contacts.normal_force, dtype=float))
         rejected_before = self.estimator.rejected_samples
         est = self.estimator.update(sample)
         if self.estimator.rejected_samples > rejected_before:
-            self.get_logger().warning("rejected a sensor sample with NaN/inf or wrong sizes",
-                                      throttle_duration_sec=1.0)
-            return
-        if self._last_ns is not None and now_ns > self._last_ns:
-            self._position += est.velocity_world[:2] * (now_ns - self._last_ns) * 1e-9
-        self._last_ns = now_ns
-        self._last_wall = time.monotonic()
-        self.pub_odom.publish(self._odometry(msg, est, w))
-        self._published += 1
+            return None
+        if self.last_ns is not None and now_ns > self.last_ns:
+            self.position += est.velocity_world[:2] * (now_ns - self.last_ns) * 1e-9
+        self.last_ns = now_ns
+        return est, self.odometry(joints, est, w)
 
-    def _odometry(self, joints: JointState, est, gyro) -> Odometry:
+    def odometry(self, joints: JointState, est: Estimate, gyro) -> Odometry:
         odom = Odometry()
         odom.header.stamp = joints.header.stamp
         odom.header.frame_id = ODOM_FRAME
         odom.child_frame_id = BASE_FRAME
         pose = odom.pose.pose
-        pose.position.x, pose.position.y = float(self._position[0]), float(self._position[1])
+        pose.position.x, pose.position.y = float(self.position[0]), float(self.position[1])
         pose.position.z = float(est.height) if est.height is not None else 0.0
         pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (
             float(v) for v in est.orientation)
@@ -107,11 +90,56 @@ class StateEstimatorNode(Node):
         odom.pose.covariance = np.diag(pose_cov).ravel().tolist()
         return odom
 
+
+def estimator_config_from_parameters(params: dict) -> EstimatorConfig:
+    params = dict(params)
+    for key in ("process_noise", "measurement_noise"):
+        params[key] = tuple(float(v) for v in params[key])
+    return EstimatorConfig(**params).validated()
+
+
+class StateEstimatorNode(Node):
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("state_estimator", **node_kwargs)
+        params = declare_parameters(self, parameter_defaults(EstimatorConfig()))
+        self.frontend = OdometryFrontend(estimator_config_from_parameters(params))
+        self.estimator = self.frontend.estimator
+        self._imu: Imu | None = None
+        self._contacts: FootContacts | None = None
+        self._last_wall = float("-inf")
+        self._published = 0
+        self.pub_odom = self.create_publisher(Odometry, "/odom", CONTROL_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(Imu, "/imu/data", lambda m: setattr(self, "_imu", m), CONTROL_QOS)
+        self.create_subscription(FootContacts, "/foot_contacts", lambda m: setattr(self, "_contacts", m),
+                                 CONTROL_QOS)
+        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
+        self.create_timer(1.0, self._publish_diagnostics)
+
+    def _on_joints(self, msg: JointState) -> None:
+        if self._imu is None or self._contacts is None:
+            return  # not all sensors seen yet
+        front = self.frontend
+        names_before, rejected_before = front.wrong_names, self.estimator.rejected_samples
+        result = front.update(msg, self._imu, self._contacts)
+        if result is None:
+            if front.wrong_names > names_before:
+                self.get_logger().warning("rejected /joint_states: joint names are not the A1's 12 joints "
+                                          "in motor order", throttle_duration_sec=1.0)
+            elif self.estimator.rejected_samples > rejected_before:
+                self.get_logger().warning("rejected a sensor sample with NaN/inf or wrong sizes",
+                                          throttle_duration_sec=1.0)
+            return
+        self._last_wall = time.monotonic()
+        self.pub_odom.publish(result[1])
+        self._published += 1
+
     def _publish_diagnostics(self) -> None:
-        stamp_s = (self._last_ns or 0) * 1e-9
+        last_ns = self.frontend.last_ns
+        stamp_s = (last_ns or 0) * 1e-9
         est = self.estimator.estimate(stamp_s)
         status = DiagnosticStatus(name="state_estimator", hardware_id="a1")
-        if self._last_ns is None:
+        if last_ns is None:
             status.level = DiagnosticStatus.WARN
             status.message = "waiting for /joint_states, /imu/data, /foot_contacts"
         elif time.monotonic() - self._last_wall > max(self.estimator.config.stale_timeout, 1.0):
@@ -122,7 +150,7 @@ class StateEstimatorNode(Node):
             status.level, status.message = DiagnosticStatus.OK, "tracking"
         values = {
             "published": self._published, "rejected_samples": self.estimator.rejected_samples,
-            "skewed_samples": self._skewed, "feet_used": est.feet_used,
+            "skewed_samples": self.frontend.skewed, "feet_used": est.feet_used,
             "velocity_body": np.round(est.velocity_body, 3).tolist(),
             "covariance_trace": f"{np.trace(est.covariance_world):.2e}",
         }
