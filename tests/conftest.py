@@ -24,18 +24,15 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 SCRIPTS_DEFAULT_DOMAIN_ID = 42  # scripts/env.sh's default: tests never use it unless pinned
-_domain_lock = None  # the open lock file of the claimed domain, kept for the process's lifetime
+_held_locks = []  # open lock files of the domains this process claimed, kept until it ends
 
 
-def _claim_domain_id() -> int:
-    """A DDS domain in [1, 100] that no other process holding these locks uses, else pid-derived."""
-    global _domain_lock
-    pinned = os.environ.get("GAIT_STACK_TEST_DOMAIN_ID", "").strip()
-    if pinned:
-        if not pinned.isdigit() or int(pinned) > 232:
-            raise pytest.UsageError(f"GAIT_STACK_TEST_DOMAIN_ID must be an integer in [0, 232], got {pinned!r}")
-        return int(pinned)
-    candidates = [d for d in range(1, 101) if d != SCRIPTS_DEFAULT_DOMAIN_ID]
+def claim_ros_domain_id(exclude: tuple[int, ...] = ()) -> int | None:
+    """A DDS domain in [1, 100] that no other process holding these locks uses (None if all are).
+
+    The claim is a lock on ``<tmp>/gait_stack_ros_domain_<id>.lock``, released when this process ends.
+    """
+    candidates = [d for d in range(1, 101) if d != SCRIPTS_DEFAULT_DOMAIN_ID and d not in exclude]
     start = os.getpid() % len(candidates)
     for i in range(len(candidates)):
         domain = candidates[(start + i) % len(candidates)]
@@ -48,13 +45,23 @@ def _claim_domain_id() -> int:
         except OSError:
             lock.close()
             continue
-        _domain_lock = lock
+        _held_locks.append(lock)
         return domain
-    return candidates[start]
+    return None
+
+
+def _test_domain_id() -> int:
+    pinned = os.environ.get("GAIT_STACK_TEST_DOMAIN_ID", "").strip()
+    if pinned:
+        if not pinned.isdigit() or int(pinned) > 232:
+            raise pytest.UsageError(f"GAIT_STACK_TEST_DOMAIN_ID must be an integer in [0, 232], got {pinned!r}")
+        return int(pinned)
+    claimed = claim_ros_domain_id()
+    return claimed if claimed is not None else 1 + os.getpid() % 100
 
 
 # Before rclpy is imported anywhere.
-os.environ["ROS_DOMAIN_ID"] = str(_claim_domain_id())
+os.environ["ROS_DOMAIN_ID"] = str(_test_domain_id())
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 for _var in ("ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY"):  # static peers would reach past localhost
     os.environ.pop(_var, None)
@@ -81,6 +88,15 @@ def pytest_terminal_summary(terminalreporter) -> None:
         detail = ", ".join(f"{k} {v}" for k, v in sorted(outcomes.items()))
         terminalreporter.write_line(f"{target}: {sum(outcomes.values())} ({detail})")
     terminalreporter.write_line(f"total: {sum(sum(c.values()) for c in _FUZZ_CASES.values())}")
+
+
+@pytest.fixture
+def spare_ros_domain() -> int:
+    """Another claimed DDS domain, for tests that run a second, separate graph."""
+    domain = claim_ros_domain_id(exclude=(int(os.environ["ROS_DOMAIN_ID"]),))
+    if domain is None:
+        pytest.skip("no free DDS domain in [1, 100] on this machine")
+    return domain
 
 
 @pytest.fixture
