@@ -38,13 +38,15 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import spin_until
 from sensor_msgs.msg import Imu, JointState
 from state_estimator_node.node import StateEstimatorNode
+from std_srvs.srv import SetBool
 
 from gait_msgs.msg import FootContacts, MotorCommand
 from gait_msgs.msg import GaitParams as GaitParamsMsg
 
 pytestmark = pytest.mark.ros
-# Examples that exchange DDS messages cost milliseconds each: half the profile's count for those.
-dds_examples = settings(max_examples=max(10, settings.default.max_examples // 2))
+# Examples that exchange DDS messages cost milliseconds each (more on a loaded machine): a third of
+# the profile's count for those; the library cores behind them get the full count elsewhere.
+dds_examples = settings(max_examples=max(10, settings.default.max_examples // 3))
 
 ROBOT = a1()
 STEP_NS = 2_000_000
@@ -430,6 +432,17 @@ def sim_bridge():
 motor_arrays = st.one_of(floats_list(12), st.lists(st.floats(-120, 1200), min_size=12, max_size=12))
 
 
+def _pause(graph) -> None:
+    """Pause the simulation through its ~/pause service, once."""
+    if getattr(graph, "paused", False):
+        return
+    client = graph.driver.create_client(SetBool, "/sim_bridge/pause")
+    assert client.wait_for_service(timeout_sec=10.0)
+    future = client.call_async(SetBool.Request(data=True))
+    assert graph.spin_until(future.done, timeout_s=10.0) and future.result().success
+    graph.paused = True
+
+
 class TestSimBridgeNode:
     """The sim bridge: hostile /motor_command in, sensors out; runtime parameters."""
 
@@ -461,7 +474,7 @@ class TestSimBridgeNode:
         fuzz_cases["sim_bridge: hostile /motor_command"][outcome] += 1
         assert (outcome == "rejected") == (not valid) or outcome == "late"
         n = len(joints)
-        assert graph.spin_until(lambda: len(joints) > n + 2, timeout_s=5.0), "the simulation stopped"
+        assert graph.spin_until(lambda: len(joints) > n, timeout_s=5.0), "the simulation stopped"
         assert bridge.failure is None
         last = joints[-1]
         assert np.all(np.isfinite(last.position)) and np.all(np.isfinite(last.velocity))
@@ -475,6 +488,7 @@ class TestSimBridgeNode:
     @example(name="world", value="step")
     def test_sim_bridge_runtime_parameters_are_validated(self, sim_bridge, fuzz_cases, name, value):
         graph = sim_bridge[0]
+        _pause(graph)  # (the simulation thread would only compete for the interpreter here)
         result = set_parameter(graph.node, name, value)
         fuzz_cases["sim_bridge: ros2 param set"]["accepted" if result.successful else "refused"] += 1
         valid = (name == "world" and value in ("flat", "step", "rough", "soft", "slope")) or (
