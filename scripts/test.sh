@@ -1,6 +1,9 @@
 #!/usr/bin/env bash
 # Set up the workspace if needed, then run the whole test suite: ruff, then pytest.
 # Extra arguments go to pytest (e.g. scripts/test.sh -k sim -x).
+# Isolation (docs/reliability.md): pytest claims a DDS domain of its own for the run (not the
+# shell's ROS_DOMAIN_ID, nor env.sh's default) with host-only discovery, so that two runs on one
+# machine, or a run next to a robot's network, never talk; GAIT_STACK_TEST_DOMAIN_ID pins it.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 "$ROOT/scripts/setup.sh"

@@ -126,7 +126,8 @@ ROBOT_DATA = load_yaml_mapping(default_config_path())
 
 
 @given(key=st.sampled_from([*sorted(ROBOT_DATA), "unknown_key"]), action=st.sampled_from(["replace", "drop"]),
-       value=values)
+       value=values | plausible)
+@example(key="damping_kd", action="replace", value=2.0)  # valid: loads
 @example(key="motor_torque_limit", action="replace", value=float("inf"))
 @example(key="motor_torque_limit", action="replace", value=HUGE_INT)
 @example(key="joint_kp", action="replace", value=[HUGE_INT, 1.0, 1.0])
