@@ -52,6 +52,8 @@ stop_nodes() {  # SIGINT each started node's process group, then SIGKILL what is
     sleep 0.1
   done
   for pid in "${_GS_PIDS[@]}"; do kill -KILL -- "-$pid" 2>/dev/null || true; done
+  # Reap them before returning: a node killed just now is not gone until its parent (this shell) waits.
+  for pid in "${_GS_PIDS[@]}"; do wait "$pid" 2>/dev/null || true; done
   _GS_PIDS=()
 }
 

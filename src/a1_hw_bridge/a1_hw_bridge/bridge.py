@@ -12,7 +12,10 @@ Start-up, as the reference did on hardware (its A1Robot reset):
    the foot-force sensors are read for the standing contact calibration.
 3. RUNNING: sensors are published; the pose is held until the controller's first command; then
    its commands go to the motors through a CommandWatchdog: invalid ones are rejected and never
-   sent, and ``command_timeout`` without a valid one sends damping.
+   sent, and ``command_timeout`` without a valid one sends damping. A command counts from the
+   moment the sensors it answers (its stamp) were published, not from its arrival, so a slow
+   message path cannot stretch the time to damping after the controller's last command; a
+   command answering no recent state of this bridge is dropped as late.
 Nothing is published on the sensor topics before RUNNING, so the estimator and controller start
 on a standing robot with calibrated contacts.
 
@@ -28,6 +31,7 @@ the current tick; a lost state is answered by re-sending the last command after
 from __future__ import annotations
 
 import enum
+import os
 import threading
 import time
 import traceback
@@ -57,6 +61,7 @@ from a1_hw_bridge.robot_io import low_cmd_from_joint_command, readings_from_low_
 CLOCK_MODES = ("realtime", "lockstep")
 TICK_WRAP = 1 << 32  # the robot's microsecond tick is a uint32
 STOP_DAMPING_PACKETS = 5  # sent when the bridge stops (UDP: more than one, in case some are lost)
+PUBLISHED_STAMPS_KEPT = 100  # realtime: states whose publish time is remembered (0.2 s at 500 Hz)
 
 
 class Phase(enum.Enum):
@@ -87,6 +92,7 @@ class BridgeConfig:
     foot_force_offset: float = 0.0  # [raw] unloaded foot reading until a swing calibration
     foot_force_scale: float = 1.0  # [N per raw unit] for FootContacts.normal_force
     swing_recalibration: bool = True  # recalibrate contact thresholds from /gait/state swings
+    realtime_priority: int = 0  # SCHED_FIFO priority 1..99 of the bridge's threads; 0: normal scheduling
 
     def validated(self) -> BridgeConfig:
         if self.clock_mode not in CLOCK_MODES:
@@ -109,6 +115,9 @@ class BridgeConfig:
         require_range("contact_swing_margin", self.contact_swing_margin, 0.0, 1000.0)
         require_range("foot_force_offset", self.foot_force_offset, -32768.0, 32767.0)
         require_range("foot_force_scale", self.foot_force_scale, 0.0, 100.0, low_open=True)
+        prio = self.realtime_priority
+        if not isinstance(prio, int) or isinstance(prio, bool) or not 0 <= prio <= 99:
+            raise ConfigError(f"realtime_priority must be an integer in [0, 99] (0: normal scheduling), got {prio!r}")
         return self
 
 
@@ -201,7 +210,7 @@ class BridgeLogic:
 class BridgeCounters:
     state_timeouts: int = 0  # lockstep: no state reply within state_timeout (lost), command re-sent
     lockstep_timeouts: int = 0  # lockstep: no controller command within lockstep_timeout
-    late_commands: int = 0  # commands stamped for another step (lockstep) or too old (realtime)
+    late_commands: int = 0  # commands answering another step (lockstep) or no recent state (realtime)
     published: int = 0
 
 
@@ -230,6 +239,7 @@ class HardwareBridge:
         self._commanded_stamp_ns = -1  # lockstep: stamp of the command accepted for the current step
         self._last_state_wall = float("-inf")
         self._prev_stamp_ns = -1  # stamp of the state handled before the latest one
+        self._published_at: dict[int, float] = {}  # realtime: stamp -> monotonic time it was published
         self._raw_forces: deque[tuple[int, np.ndarray]] = deque(maxlen=100)
         self._schedules: list[tuple[int, np.ndarray]] = []
         self._tick_wraps = 0
@@ -237,12 +247,24 @@ class HardwareBridge:
         self.link = RobotLink(self.config.robot_ip, self.config.robot_port, self.config.local_ip,
                               self.config.local_port)
         self.pacer = Pacer(self.config.control_period)  # realtime mode: the command period
+        self.scheduling = "not started"
         self._thread = threading.Thread(target=self._run, name="a1_link", daemon=True)
 
     # --- called from other threads (the node's callbacks) ----------------------------------------
-    def start(self) -> None:
+    def start(self) -> str:
+        """Start the link thread; with ``realtime_priority``, first make the calling thread (the node's
+        executor) SCHED_FIFO, which the link thread inherits. Returns how the scheduling went."""
+        scheduling = "normal"
+        if self.config.realtime_priority:
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.config.realtime_priority))
+                scheduling = f"SCHED_FIFO {self.config.realtime_priority}"
+            except OSError as exc:  # no root / CAP_SYS_NICE / rtprio limit: run anyway, say so
+                scheduling = f"normal (SCHED_FIFO refused: {exc.strerror})"
+        self.scheduling = scheduling
         self._running = True
         self._thread.start()
+        return scheduling
 
     def stop(self) -> None:
         """Stop the link thread, then leave the motors in damping (the robot keeps its last command)."""
@@ -268,16 +290,15 @@ class HardwareBridge:
                 self.counters.late_commands += 1
                 return "late"
             if self.config.clock_mode == "lockstep":
-                if stamp_ns != self._stamp_ns:
-                    self.counters.late_commands += 1
-                    return "late"
-                now = stamp_ns * 1e-9
-            else:
-                if (self._stamp_ns - stamp_ns) * 1e-9 > self.config.command_timeout:
-                    self.counters.late_commands += 1
-                    return "late"
-                now = time.monotonic()
-            self.logic.watchdog.accept(valid, now)
+                issued = stamp_ns * 1e-9 if stamp_ns == self._stamp_ns else None
+            else:  # the command is as old as the sensors it answers: when were they published?
+                issued = self._published_at.get(stamp_ns)
+                if issued is not None and time.monotonic() - issued >= self.config.command_timeout:
+                    issued = None
+            if issued is None:  # not an answer to a recent state of this bridge
+                self.counters.late_commands += 1
+                return "late"
+            self.logic.watchdog.accept(valid, issued)
             self._commanded_stamp_ns = stamp_ns
             self._lock.notify_all()
             return "accepted"
@@ -294,6 +315,7 @@ class HardwareBridge:
             logic, wd, link = self.logic, self.logic.watchdog, self.link.stats
             return {
                 "phase": logic.phase.value, "fault": logic.fault, "clock_mode": self.config.clock_mode,
+                "scheduling": self.scheduling,
                 "robot": f"{self.config.robot_ip}:{self.config.robot_port}",
                 "state_age_s": f"{time.monotonic() - self._last_state_wall:.3f}",
                 "states_received": link.received, "states_accepted": link.accepted,
@@ -384,6 +406,9 @@ class HardwareBridge:
             readings = self.logic.on_state(state, now)
             if readings is not None:
                 self._stamp_ns = stamp_ns
+                self._published_at[stamp_ns] = time.monotonic()
+                if len(self._published_at) > PUBLISHED_STAMPS_KEPT:
+                    del self._published_at[next(iter(self._published_at))]
         if self._publish_clock is not None:
             self._publish_clock(stamp_ns)
         if readings is not None:

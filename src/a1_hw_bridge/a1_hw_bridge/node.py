@@ -51,7 +51,10 @@ class HardwareBridgeNode(Node):
             f"A1 link {self.bridge.link.local_address[0]}:{self.bridge.link.local_address[1]} -> "
             f"{config.robot_ip}:{config.robot_port}, clock_mode={config.clock_mode}, "
             f"command_timeout={config.command_timeout}s; standing up once the robot answers")
-        self.bridge.start()
+        scheduling = self.bridge.start()
+        if config.realtime_priority and not scheduling.startswith("SCHED_FIFO"):
+            self.get_logger().warning(f"realtime_priority {config.realtime_priority} not applied: {scheduling}; "
+                                      "the damping deadline is then at the mercy of the CPU load")
 
     @property
     def failure(self) -> Exception | None:
