@@ -33,6 +33,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="measurement window, wall time [s]")
+    parser.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE",
+                        help="extra convex_mpc parameter, e.g. embedded_estimator:=true (repeatable)")
     args = parser.parse_args()
     if not 5.0 <= args.seconds <= 3600.0:
         parser.error("--seconds must be in [5, 3600]")
@@ -49,7 +51,7 @@ def main() -> None:
     from gait_msgs.msg import MotorCommand
 
     graph = Graph(Path(tempfile.mkdtemp(prefix="graph_realtime_")))
-    graph.start_stack(clock="realtime")
+    graph.start_stack("realtime", 0.5, *args.controller_param)
     rclpy.init()
     node = Node("realtime_probe")
     joints: dict[int, float] = {}
