@@ -244,7 +244,7 @@ def test_a_nan_controller_output_is_replaced_by_damping_then_the_robot_stands_ag
     assert sup.invalid_commands == 2
 
 
-# --- the estimator's sensor samples (state_estimator_node: not ours to fix) -----------------------------
+# --- the estimator's sensor samples ---------------------------------------------------------------------
 def _sample(time: float, **changes):
     from state_estimator_node.estimator import SensorSample
 
@@ -263,15 +263,20 @@ def _sample(time: float, **changes):
 @example(changes={"orientation": [0.0, 0.0, 0.0, 0.0]})
 def test_estimator_rejects_unusable_samples_and_stays_finite(fuzz_cases, changes):
     """NaN/inf, wrong sizes and zero quaternions: rejected and counted; the estimate stays finite."""
-    from state_estimator_node.estimator import VelocityEstimator
+    from state_estimator_node import estimator as module
 
-    est = VelocityEstimator()
+    est = module.VelocityEstimator()
     est.update(_sample(0.0))
     rejected = est.rejected_samples
     reference = _sample(0.0)
-    unusable = {k: v for k, v in changes.items()  # (finite but absurd values: see the xfail below)
-                if len(v) != len(getattr(reference, k)) or not np.all(np.isfinite(v))
-                or (k == "orientation" and np.linalg.norm(v) <= 0.5)}
+    limits = {"joint_position": module.MAX_JOINT_ANGLE, "joint_velocity": module.MAX_JOINT_SPEED,
+              "angular_velocity": module.MAX_GYRO, "linear_acceleration": module.MAX_ACCELERATION,
+              "foot_force": module.MAX_FOOT_FORCE}
+    with np.errstate(all="ignore"):
+        unusable = {k: v for k, v in changes.items()  # wrong size, NaN/inf, not a unit quaternion, beyond a sensor
+                    if len(v) != len(getattr(reference, k)) or not np.all(np.isfinite(v))
+                    or (k == "orientation" and not 0.5 < np.linalg.norm(v) < 2.0)
+                    or (k in limits and np.max(np.abs(v)) >= limits[k])}
     after = est.update(_sample(DT, **unusable))
     fuzz_cases["sensor sample -> estimator"]["rejected" if est.rejected_samples > rejected else "accepted"] += 1
     assert est.rejected_samples == rejected + bool(unusable)
@@ -279,10 +284,6 @@ def test_estimator_rejects_unusable_samples_and_stays_finite(fuzz_cases, changes
     assert np.all(np.isfinite(est.update(_sample(2 * DT)).velocity_body))
 
 
-@pytest.mark.xfail(strict=True, reason="state_estimator_node.estimator.VelocityEstimator._valid accepts a finite "
-                   "quaternion whose norm overflows to inf (e.g. (1e200, 1e200, 0, 0)) and finite but impossible "
-                   "readings; the orientation then normalises to zeros and /odom carries NaN velocity. _valid "
-                   "should require a norm near 1 (as the controller's supervisor now does) and plausible ranges")
 @given(orientation=arrays(st.just(4), st.floats(-1e300, 1e300)))
 @example(orientation=[1e200, 1e200, 0.0, 0.0])
 def test_estimator_output_stays_finite_for_any_finite_quaternion(orientation):

@@ -290,10 +290,6 @@ class TestConvexMpcNode:
         assert graph.node.get_parameter("mode").value == "walk"
 
 
-@pytest.mark.xfail(strict=True, reason="convex_mpc_node/node.py _control computes motor_power(joints.effort, "
-                   "joints.velocity) without checking sizes: a /joint_states without efforts (legal in "
-                   "sensor_msgs/JointState) or with fewer efforts than velocities raises ValueError in the "
-                   "subscription callback, which ends the node")
 def test_convex_mpc_node_survives_joint_states_without_efforts():
     graph = Graph(lambda ctx: ConvexMpcNode(context=ctx))
     try:
@@ -498,7 +494,7 @@ class TestSimBridgeNode:
             assert name in result.reason
 
 
-# --- state estimator (not ours to fix) ------------------------------------------------------------------
+# --- state estimator --------------------------------------------------------------------------------
 @pytest.fixture(scope="class")  # one graph alive at a time: no cross-talk
 def estimator():
     graph = Graph(lambda ctx: StateEstimatorNode(context=ctx))
@@ -591,20 +587,12 @@ class TestStateEstimatorNode:
         assert all(math.isfinite(v) for v in (t.x, t.y, t.z))
 
 
-    @pytest.mark.xfail(strict=True, reason="state_estimator_node/node.py registers no on-set-parameters callback: "
-                       "'ros2 param set /state_estimator process_noise [-1.0, 0.0, 0.0]' (or any value) succeeds "
-                       "although the node only reads its parameters at start-up and the value is out of range; "
-                       "a1_common.node_support.guard_runtime_parameters(self, defaults) would refuse it")
     def test_estimator_runtime_parameters_are_refused(self, estimator):
         graph = estimator[0]
         result = set_parameter(graph.node, "process_noise", [-1.0, 0.0, 0.0])
         assert not result.successful and "process_noise" in result.reason
 
 
-@pytest.mark.xfail(strict=True, reason="a1_sim_bridge/joint_hold_node.py registers no on-set-parameters callback: "
-                   "'ros2 param set /joint_hold ramp_time -5.0' succeeds although ramp_time is read at start-up "
-                   "only and must be in [0, 10]; guard_runtime_parameters would refuse it (the sim bridge's "
-                   "monitor node has the same gap)")
 def test_joint_hold_runtime_parameters_are_refused(rclpy_context):
     from a1_sim_bridge.joint_hold_node import JointHoldNode
 

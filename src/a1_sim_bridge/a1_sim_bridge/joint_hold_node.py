@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from a1_common.command import JointCommand
 from a1_common.config import require_range
-from a1_common.node_support import declare_parameters, run_node
+from a1_common.node_support import declare_parameters, guard_runtime_parameters, run_node
 from a1_common.robot import a1
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -25,6 +25,7 @@ class JointHoldNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("joint_hold", **node_kwargs)
         ramp = declare_parameters(self, {"ramp_time": 1.0})["ramp_time"]
+        guard_runtime_parameters(self, {"ramp_time": 1.0})
         self.ramp_time = require_range("ramp_time", ramp, 0.0, 10.0)  # [s]
         self.robot = a1()
         self._start: tuple[int, np.ndarray] | None = None

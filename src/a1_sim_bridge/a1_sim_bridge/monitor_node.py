@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 from a1_common.config import require_range
-from a1_common.node_support import declare_parameters, run_node
+from a1_common.node_support import declare_parameters, guard_runtime_parameters, run_node
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
@@ -33,6 +33,7 @@ class MonitorNode(Node):
         super().__init__("robot_state_monitor")
         # print_period [s] of sensor time; duration [s] of sensor time, 0 = run until stopped.
         params = declare_parameters(self, {"print_period": 0.5, "duration": 0.0})
+        guard_runtime_parameters(self, {"print_period": 0.5, "duration": 0.0})
         self.period = require_range("print_period", params["print_period"], 0.0, 3600.0, low_open=True)
         self.duration = require_range("duration", params["duration"], 0.0, 1e6)
         self.joints = self.imu = self.contacts = self.truth = None

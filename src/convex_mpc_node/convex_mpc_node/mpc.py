@@ -68,16 +68,29 @@ class MpcConfig:
         if not isinstance(self.horizon, int) or not 1 <= self.horizon <= 50:
             raise ValueError(f"horizon must be an integer in [1, 50], got {self.horizon!r}")
         require_range("step", self.step, 0.0, 0.2, low_open=True)
-        if len(self.state_weights) != 12 or min(self.state_weights) < 0:
-            raise ValueError(f"state_weights must be 12 non-negative numbers, got {self.state_weights}")
+        for i, w in enumerate(_numbers("state_weights", self.state_weights, 12)):
+            require_range(f"state_weights[{i}]", w, 0.0, 1e6)
         require_range("force_weight", self.force_weight, 0.0, 1.0, low_open=True)
         require_range("mass", self.mass, 1.0, 100.0)
-        if len(self.inertia) != 3 or min(self.inertia) <= 0:
-            raise ValueError(f"inertia must be 3 positive numbers [kg m^2], got {self.inertia}")
+        for i, inertia in enumerate(_numbers("inertia", self.inertia, 3)):
+            require_range(f"inertia[{i}]", inertia, 0.0, 100.0, low_open=True)
         require_range("friction_coefficient", self.friction_coefficient, 0.0, 2.0, low_open=True)
         require_range("max_normal_force", self.max_normal_force, 1.0, 5000.0)
         require_range("min_normal_force", self.min_normal_force, 0.0, self.max_normal_force)
+        require_range("gravity", self.gravity, 0.0, 20.0, low_open=True)
+        require_range("eps", self.eps, 0.0, 1.0, low_open=True)
+        if not isinstance(self.max_iter, int) or isinstance(self.max_iter, bool) or not 1 <= self.max_iter <= 100_000:
+            raise ValueError(f"max_iter must be an integer in [1, 100000], got {self.max_iter!r}")
+        require_range("max_violation", self.max_violation, 0.0, 1000.0, low_open=True)
         return self
+
+
+def _numbers(name: str, values, count: int) -> tuple:
+    """``values`` as a tuple of ``count`` entries, or ValueError naming ``name``."""
+    values = tuple(values) if isinstance(values, (list, tuple)) else (values,)
+    if len(values) != count:
+        raise ValueError(f"{name} must have {count} entries, got {len(values)}")
+    return values
 
 
 @dataclass

@@ -219,7 +219,9 @@ class ConvexMpcNode(Node):
         self._missed += elapsed > self.period
         if result.state == "walk" and self.controller.last_solution is not None:
             self._solve_times.append(self.controller.last_solution.solve_time)
-        self._powers.append(float(motor_power(np.asarray(joints.effort), np.asarray(joints.velocity)).sum()))
+        effort, joint_velocity = np.asarray(joints.effort, dtype=float), np.asarray(joints.velocity, dtype=float)
+        if effort.shape == joint_velocity.shape:  # efforts are optional in sensor_msgs/JointState
+            self._powers.append(float(motor_power(effort, joint_velocity).sum()))
         self._speeds.append(float(np.linalg.norm(velocity[:2])))
         self.pub_state.publish(self._gait_state(joints.header.stamp, contacts))
 

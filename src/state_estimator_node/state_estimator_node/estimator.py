@@ -25,6 +25,10 @@ from a1_common.kinematics import foot_positions, leg_jacobians, quat_to_matrix
 from a1_common.robot import NUM_JOINTS, NUM_LEGS, A1Constants, a1
 from filterpy.kalman import KalmanFilter
 
+# Readings beyond these are sensor faults, not motion (the A1's joints turn < 30 rad/s, its IMU
+# saturates far below these): [rad], [rad/s], [rad/s], [m/s^2], [N].
+MAX_JOINT_ANGLE, MAX_JOINT_SPEED, MAX_GYRO, MAX_ACCELERATION, MAX_FOOT_FORCE = 10.0, 100.0, 100.0, 1e4, 1e5
+
 
 @dataclass(frozen=True)
 class EstimatorConfig:
@@ -44,7 +48,10 @@ class EstimatorConfig:
 
     def validated(self) -> EstimatorConfig:
         for name in ("process_noise", "measurement_noise"):
-            values = np.asarray(getattr(self, name), dtype=float)
+            try:
+                values = np.asarray(getattr(self, name), dtype=float)
+            except (TypeError, ValueError, OverflowError):
+                values = np.full(0, np.nan)
             if values.shape != (3,) or not np.all(np.isfinite(values)) or np.any(values <= 0):
                 raise ConfigError(f"{name} must be 3 positive numbers, got {getattr(self, name)!r}")
         require_range("initial_covariance", self.initial_covariance, 0.0, 100.0, low_open=True)
@@ -218,4 +225,10 @@ class VelocityEstimator:
                 return False
         if np.asarray(sample.foot_contact).shape != (NUM_LEGS,) or not np.isfinite(sample.time):
             return False
-        return bool(np.linalg.norm(sample.orientation) > 0.5)
+        # Physically possible readings only: a unit quaternion (loosely), and magnitudes far beyond
+        # the A1's (so that the filter's arithmetic cannot overflow into NaN).
+        norm = np.linalg.norm(np.asarray(sample.orientation, dtype=float))
+        return bool(0.5 < norm < 2.0 and all(np.max(np.abs(np.asarray(v, dtype=float))) < limit for v, limit in (
+            (sample.joint_position, MAX_JOINT_ANGLE), (sample.joint_velocity, MAX_JOINT_SPEED),
+            (sample.angular_velocity, MAX_GYRO), (sample.linear_acceleration, MAX_ACCELERATION),
+            (sample.foot_force, MAX_FOOT_FORCE))))

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 from a1_common.config import parameter_defaults
-from a1_common.node_support import declare_parameters, run_node
+from a1_common.node_support import declare_parameters, guard_runtime_parameters, run_node
 from a1_sim_bridge.conversions import BASE_FRAME, ODOM_FRAME, ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -101,7 +101,9 @@ def estimator_config_from_parameters(params: dict) -> EstimatorConfig:
 class StateEstimatorNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("state_estimator", **node_kwargs)
-        params = declare_parameters(self, parameter_defaults(EstimatorConfig()))
+        defaults = parameter_defaults(EstimatorConfig())
+        params = declare_parameters(self, defaults)
+        guard_runtime_parameters(self, defaults)  # all read at start-up: refuse changes, never ignore them
         self.frontend = OdometryFrontend(estimator_config_from_parameters(params))
         self.estimator = self.frontend.estimator
         self._imu: Imu | None = None
