@@ -17,6 +17,7 @@ from __future__ import annotations
 import collections
 import fcntl
 import os
+import signal
 import tempfile
 from pathlib import Path
 
@@ -25,6 +26,16 @@ from hypothesis import HealthCheck, settings
 
 SCRIPTS_DEFAULT_DOMAIN_ID = 42  # scripts/env.sh's default: tests never use it unless pinned
 _held_locks = []  # open lock files of the domains this process claimed, kept until it ends
+
+
+def _terminate_like_ctrl_c(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+# SIGTERM (e.g. `timeout`, a CI job cancelled) ends the run like Ctrl-C, so pytest still tears the
+# fixtures down: the node processes the end-to-end tests started in their own sessions are stopped
+# instead of living on as orphans that load the machine.
+signal.signal(signal.SIGTERM, _terminate_like_ctrl_c)
 
 
 def claim_ros_domain_id(exclude: tuple[int, ...] = ()) -> int | None:
