@@ -96,6 +96,22 @@ def require_range(name: str, value: float, low: float, high: float, *, low_open:
     return v
 
 
+
+def require_integer(name: str, value: Any, low: int, high: int) -> int:
+    """Return ``value`` if it is an integer (a bool is not) in [low, high], else raise naming the field."""
+    if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= high:
+        raise ConfigError(f"{name} must be an integer in [{low}, {high}], got {_short(value)}")
+    return value
+
+
+def require_numbers(name: str, values: Any, count: int, low: float, high: float, *,
+                    low_open: bool = False) -> tuple[float, ...]:
+    """``count`` numbers, each checked like require_range as ``name[i]``; a wrong count names ``name``."""
+    values = tuple(values) if isinstance(values, (list, tuple)) else (values,)
+    if len(values) != count:
+        raise ConfigError(f"{name} must have {count} entries, got {len(values)}")
+    return tuple(require_range(f"{name}[{i}]", v, low, high, low_open=low_open) for i, v in enumerate(values))
+
 def _short(value: Any, limit: int = 80) -> str:
     """repr() of a rejected value, cut short so a huge one cannot flood a log line."""
     text = repr(value)

@@ -20,7 +20,7 @@ import numpy as np
 import pybullet
 import pybullet_data
 from a1_common.command import JointCommand
-from a1_common.config import ConfigError, require_range
+from a1_common.config import ConfigError, require_integer, require_range
 from a1_common.robot import NUM_LEGS, A1Constants, a1
 from pybullet_utils import bullet_client
 
@@ -69,9 +69,7 @@ class SimConfig:
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
             raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
         require_range("time_step", self.time_step, 1e-4, 0.01)
-        if not isinstance(self.solver_iterations, int) or not 1 <= self.solver_iterations <= 1000:
-            raise ConfigError(
-                f"solver_iterations must be an integer in [1, 1000], got {self.solver_iterations!r}")
+        require_integer("solver_iterations", self.solver_iterations, 1, 1000)
         require_range("ground_friction", self.ground_friction, 0.0, 5.0, low_open=True)
         require_range("step_height", self.step_height, 0.0, 0.3, low_open=True)
         require_range("step_distance", self.step_distance, 0.5, 50.0)

@@ -16,7 +16,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from a1_common.command import JointCommand
-from a1_common.config import ConfigError, config_dir, load_node_parameters, parameter_defaults, require_range
+from a1_common.config import (
+    ConfigError,
+    config_dir,
+    load_node_parameters,
+    parameter_defaults,
+    require_integer,
+    require_numbers,
+    require_range,
+)
 from a1_common.kinematics import foot_positions, inverse_kinematics, leg_jacobians, quat_to_matrix
 from a1_common.robot import NUM_LEGS, A1Constants, a1
 
@@ -51,18 +59,11 @@ class ControllerConfig:
         require_range("body_height", self.body_height, 0.1, 0.5)
         require_range("swing_apex_height", self.swing_apex_height, 0.0, 0.3, low_open=True)
         require_range("raibert_feedback_gain", self.raibert_feedback_gain, 0.0, 1.0)
-        for name, values, count, low, high in (("raibert_clip", self.raibert_clip, 2, 0.0, 0.5),
-                                               ("com_offset", self.com_offset, 3, -0.2, 0.2)):
-            values = tuple(values) if isinstance(values, (list, tuple)) else (values,)
-            if len(values) != count:
-                raise ConfigError(f"{name} must have {count} entries, got {len(values)}")
-            for i, v in enumerate(values):
-                require_range(f"{name}[{i}]", v, low, high)
+        require_numbers("raibert_clip", self.raibert_clip, 2, 0.0, 0.5)
+        require_numbers("com_offset", self.com_offset, 3, -0.2, 0.2)
         require_range("max_position_error", self.max_position_error, 0.0, 1.0)
         require_range("max_yaw_error", self.max_yaw_error, 0.0, math.pi)
-        steps = self.mpc_period_steps
-        if not isinstance(steps, int) or isinstance(steps, bool) or not 1 <= steps <= 25:
-            raise ConfigError(f"mpc_period_steps must be an integer in [1, 25], got {steps!r}")
+        require_integer("mpc_period_steps", self.mpc_period_steps, 1, 25)
         return self
 
 

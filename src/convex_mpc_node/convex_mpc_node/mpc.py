@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import osqp
 import scipy.sparse as sp
-from a1_common.config import require_range
+from a1_common.config import require_integer, require_numbers, require_range
 from a1_common.robot import NUM_LEGS
 
 NX = 13  # state size (with the gravity entry)
@@ -65,32 +65,21 @@ class MpcConfig:
     max_violation: float = 1.0  # [N] largest constraint violation accepted from an unfinished solve
 
     def validated(self) -> MpcConfig:
-        if not isinstance(self.horizon, int) or not 1 <= self.horizon <= 50:
-            raise ValueError(f"horizon must be an integer in [1, 50], got {self.horizon!r}")
+        require_integer("horizon", self.horizon, 1, 50)
         require_range("step", self.step, 0.0, 0.2, low_open=True)
-        for i, w in enumerate(_numbers("state_weights", self.state_weights, 12)):
-            require_range(f"state_weights[{i}]", w, 0.0, 1e6)
+        require_numbers("state_weights", self.state_weights, 12, 0.0, 1e6)
         require_range("force_weight", self.force_weight, 0.0, 1.0, low_open=True)
         require_range("mass", self.mass, 1.0, 100.0)
-        for i, inertia in enumerate(_numbers("inertia", self.inertia, 3)):
-            require_range(f"inertia[{i}]", inertia, 0.0, 100.0, low_open=True)
+        require_numbers("inertia", self.inertia, 3, 0.0, 100.0, low_open=True)
         require_range("friction_coefficient", self.friction_coefficient, 0.0, 2.0, low_open=True)
         require_range("max_normal_force", self.max_normal_force, 1.0, 5000.0)
         require_range("min_normal_force", self.min_normal_force, 0.0, self.max_normal_force)
         require_range("gravity", self.gravity, 0.0, 20.0, low_open=True)
         require_range("eps", self.eps, 0.0, 1.0, low_open=True)
-        if not isinstance(self.max_iter, int) or isinstance(self.max_iter, bool) or not 1 <= self.max_iter <= 100_000:
-            raise ValueError(f"max_iter must be an integer in [1, 100000], got {self.max_iter!r}")
+        require_integer("max_iter", self.max_iter, 1, 100_000)
         require_range("max_violation", self.max_violation, 0.0, 1000.0, low_open=True)
         return self
 
-
-def _numbers(name: str, values, count: int) -> tuple:
-    """``values`` as a tuple of ``count`` entries, or ValueError naming ``name``."""
-    values = tuple(values) if isinstance(values, (list, tuple)) else (values,)
-    if len(values) != count:
-        raise ValueError(f"{name} must have {count} entries, got {len(values)}")
-    return values
 
 
 @dataclass

@@ -17,7 +17,14 @@ import os
 from dataclasses import dataclass, field
 
 import yaml
-from a1_common.config import ConfigError, config_dir, dataclass_from_mapping, load_yaml_mapping, require_range
+from a1_common.config import (
+    ConfigError,
+    config_dir,
+    dataclass_from_mapping,
+    load_yaml_mapping,
+    require_integer,
+    require_range,
+)
 
 PROFILE_KINDS = ("ramp", "constant", "steps", "random")
 OBSERVATIONS = ("basic", "extended")
@@ -31,12 +38,6 @@ WORLDS = ("flat", "step", "rough", "soft", "slope")
 def _choice(name: str, value: str, allowed: tuple[str, ...]) -> str:
     if value not in allowed:
         raise ConfigError(f"{name} must be one of {list(allowed)}, got {value!r}")
-    return value
-
-
-def _integer(name: str, value: int, low: int, high: int) -> int:
-    if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= high:
-        raise ConfigError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
     return value
 
 
@@ -95,7 +96,7 @@ class EnvConfig:
     profile: ProfileConfig = field(default_factory=ProfileConfig)
 
     def validated(self) -> EnvConfig:
-        _integer("env.episode_steps", self.episode_steps, 1, 100_000)
+        require_integer("env.episode_steps", self.episode_steps, 1, 100_000)
         _choice("env.observation", self.observation, OBSERVATIONS)
         _choice("env.velocity_source", self.velocity_source, VELOCITY_SOURCES)
         _choice("env.world", self.world, WORLDS)
@@ -168,7 +169,7 @@ class PolicyConfig:
 
     def validated(self) -> PolicyConfig:
         _choice("policy.kind", self.kind, POLICY_KINDS)
-        _integer("policy.hidden_units", self.hidden_units, 1, 4096)
+        require_integer("policy.hidden_units", self.hidden_units, 1, 4096)
         self.action.validated()
         return self
 
@@ -188,15 +189,15 @@ class TrainerConfig:
 
     def validated(self) -> TrainerConfig:
         _choice("trainer.algorithm", self.algorithm, ALGORITHMS)
-        _integer("trainer.seed", self.seed, 0, 2**31 - 1)
-        _integer("trainer.iterations", self.iterations, 1, 1_000_000)
-        _integer("trainer.population_size", self.population_size, 2, 10_000)
+        require_integer("trainer.seed", self.seed, 0, 2**31 - 1)
+        require_integer("trainer.iterations", self.iterations, 1, 1_000_000)
+        require_integer("trainer.population_size", self.population_size, 2, 10_000)
         require_range("trainer.sigma0", self.sigma0, 0.0, 10.0, low_open=True)
-        _integer("trainer.ars_directions", self.ars_directions, 1, 10_000)
+        require_integer("trainer.ars_directions", self.ars_directions, 1, 10_000)
         require_range("trainer.ars_sigma", self.ars_sigma, 0.0, 10.0, low_open=True)
         require_range("trainer.ars_step_size", self.ars_step_size, 0.0, 10.0, low_open=True)
-        _integer("trainer.checkpoint_every", self.checkpoint_every, 1, 1_000_000)
-        _integer("trainer.eval_every", self.eval_every, 0, 1_000_000)
+        require_integer("trainer.checkpoint_every", self.checkpoint_every, 1, 1_000_000)
+        require_integer("trainer.eval_every", self.eval_every, 0, 1_000_000)
         return self
 
 
@@ -208,7 +209,7 @@ class WorkerConfig:
 
     def validated(self) -> WorkerConfig:
         _choice("workers.backend", self.backend, BACKENDS)
-        _integer("workers.count", self.count, 0, 4096)
+        require_integer("workers.count", self.count, 0, 4096)
         return self
 
     def resolved_count(self) -> int:
