@@ -36,6 +36,7 @@ def test_reward_terms_on_hand_computed_cases():
     assert r.speed_penalty == pytest.approx(0.01)  # ((1.0 - 0.9) / 1.0)^2
     assert r.energy_penalty == pytest.approx(0.37 * 147.0 / (15 * 9.8 * 1.0))  # = 0.37
     assert r.reward == pytest.approx(3 - 0.01 - 0.37)
+    assert (r.relative_speed_error, r.cost_of_transport) == pytest.approx((0.1, 147.0 / (15 * 9.8)))
     low = step_reward(cfg, desired_speed=0.1, speed=0.2, power=44.1)  # both denominators floored at 0.3
     assert low.speed_penalty == pytest.approx((0.1 / 0.3) ** 2)
     assert low.energy_penalty == pytest.approx(0.37 * 44.1 / (15 * 9.8 * 0.3))

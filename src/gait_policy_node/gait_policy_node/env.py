@@ -56,8 +56,10 @@ def make_profile(cfg: ProfileConfig, seed: int = 0) -> SpeedProfile:
 @dataclass(frozen=True)
 class RewardTerms:
     reward: float
-    speed_penalty: float  # w_v * clipped relative error^2
-    energy_penalty: float  # w_e * cost of transport
+    relative_speed_error: float  # |v_des - v| / max(v_des, min_speed), clipped
+    cost_of_transport: float  # power / (m g max(v_des, min_speed))
+    speed_penalty: float  # w_v * relative_speed_error^2
+    energy_penalty: float  # w_e * cost_of_transport
 
 
 def step_reward(cfg: RewardConfig, desired_speed: float, speed: float, power: float) -> RewardTerms:
@@ -65,9 +67,10 @@ def step_reward(cfg: RewardConfig, desired_speed: float, speed: float, power: fl
     mean total motor power [W] (already max(tau w + alpha tau^2, 0) per motor)."""
     denominator = max(abs(desired_speed), cfg.min_speed)
     relative = min(abs(desired_speed - speed) / denominator, cfg.max_relative_speed_error)
+    cot = power / (cfg.mass * cfg.gravity * denominator)
     speed_penalty = cfg.speed_weight * relative**2
-    energy_penalty = cfg.energy_weight * power / (cfg.mass * cfg.gravity * denominator)
-    return RewardTerms(cfg.alive_bonus - speed_penalty - energy_penalty, speed_penalty, energy_penalty)
+    energy_penalty = cfg.energy_weight * cot
+    return RewardTerms(cfg.alive_bonus - speed_penalty - energy_penalty, relative, cot, speed_penalty, energy_penalty)
 
 
 @dataclass

@@ -48,16 +48,13 @@ def run_episode(env: GaitEnv, policy: Callable[[np.ndarray], GaitParams], seed: 
     obs = env.reset(seed, profile=profile, record=record)
     total, n, fell = 0.0, 0, False
     speed_error = cot = speed = 0.0
-    rc = env.reward_config
     limit = steps or env.config.episode_steps
     while n < limit:
         obs, reward, done, info = env.step(policy(obs))
         total += reward
         n += 1
-        denominator = max(abs(info.desired_speed), rc.min_speed)
-        rel = min(abs(info.desired_speed - info.speed) / denominator, rc.max_relative_speed_error)
-        speed_error += rel**2
-        cot += info.power / (rc.mass * rc.gravity * denominator)
+        speed_error += info.terms.relative_speed_error**2
+        cot += info.terms.cost_of_transport
         speed += info.speed
         if info.fell:
             fell = True

@@ -30,6 +30,7 @@ from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
 
 from gait_policy_node.env import GaitEnv, make_profile, step_reward
 from gait_policy_node.learned_policy import load_policy
+from gait_policy_node.rollout import POLICY_PERIOD
 from gait_policy_node.rollout_workers import run_episode
 from gait_policy_node.train_config import ProfileConfig, TrainConfig, load_train_config, train_config_from_mapping
 
@@ -48,7 +49,7 @@ def _init_worker(config_dict: dict) -> None:
 
 def run_constant_speed(env: GaitEnv, policy, speed: float, hold: float) -> dict:
     """Ramp to ``speed`` then hold; mean speed, power, CoT and reward over the last seconds."""
-    steps = round((speed / ACCELERATION + hold) / 0.05)
+    steps = round((speed / ACCELERATION + hold) / POLICY_PERIOD)
     profile = make_profile(ProfileConfig(kind="ramp", target_speed=speed, acceleration=ACCELERATION))
     stats, record = run_episode(env, policy, seed=0, profile=profile, record=True, steps=steps)
     data = record.arrays()
