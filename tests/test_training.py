@@ -16,15 +16,45 @@ from pathlib import Path
 import numpy as np
 import pytest
 from a1_common.config import ConfigError
-from gait_policy_node.learned_policy import load_policy, read_npz
+from gait_policy_node.learned_policy import TEMPORARY_MARK, load_policy, read_npz
 from gait_policy_node.rollout_workers import ProcessEvaluator, RayEvaluator, RolloutTask, SerialEvaluator
 from gait_policy_node.train_config import load_train_config
 from gait_policy_node.train_es import Trainer
 
 TINY = ["env.episode_steps=4", "trainer.population_size=4", "trainer.ars_directions=2", "policy.hidden_units=8",
         "trainer.eval_every=1", "trainer.checkpoint_every=1"]
+CHEAP = ("--set", "env.episode_steps=1", "--set", "trainer.population_size=2")  # the kill-mid-write runs
 COMPARED = ("iteration", "episodes", "policy_steps", "mean_return", "std_return", "max_return", "min_return",
             "falls", "step_size", "eval_return", "eval_speed_error", "eval_cost_of_transport", "eval_fell")
+
+
+# train_es with np.savez patched so that the Nth write of one file's temporary file (see
+# write_npz_atomically) stops halfway: half of the bytes written, flushed and fsynced, then SIGKILL
+# from the process itself. Deterministic: no sleeps, no racing a kill against the writes.
+# Arguments: file name, N, then train_es's own arguments.
+KILL_MID_WRITE = """
+import io, itertools, os, signal, sys
+import numpy as np
+from gait_policy_node.learned_policy import TEMPORARY_MARK
+from gait_policy_node.train_es import main
+
+name, nth = sys.argv[1], int(sys.argv[2])
+writes, savez = itertools.count(1), np.savez
+
+def savez_killed_midway(file, *args, **kwds):
+    ours = os.path.basename(getattr(file, "name", "")).startswith(f".{name}{TEMPORARY_MARK}")
+    if not ours or next(writes) < nth:
+        return savez(file, *args, **kwds)
+    whole = io.BytesIO()
+    savez(whole, *args, **kwds)
+    file.write(whole.getvalue()[: len(whole.getvalue()) // 2])
+    file.flush()
+    os.fsync(file.fileno())
+    os.kill(os.getpid(), signal.SIGKILL)
+
+np.savez = savez_killed_midway
+sys.exit(main(sys.argv[3:]))
+"""
 
 
 def train_es(*args: str, **popen) -> subprocess.Popen:
@@ -88,6 +118,49 @@ def test_resume_after_kill_continues_exactly(tmp_path):
     a, _ = load_policy(killed / "policy.npz")
     b, _ = load_policy(straight / "policy.npz")
     np.testing.assert_array_equal(a.params, b.params)
+
+
+@pytest.fixture(scope="module")
+def cheap_straight_run(tmp_path_factory) -> Path:
+    """An uninterrupted 2-iteration run of CHEAP, shared by the kill-mid-write cases."""
+    run = tmp_path_factory.mktemp("straight") / "run"
+    proc = train_es(*tiny_args(run, *CHEAP, "--iterations", "2", "--backend", "serial"))
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 0, out
+    return run
+
+
+@pytest.mark.parametrize(("name", "nth", "good"), [("checkpoint.npz", 2, 1), ("policy.npz", 2, 2)],
+                         ids=["checkpoint", "last-policy"])
+def test_kill_during_a_checkpoint_write_resumes_from_the_last_good_one(tmp_path, cheap_straight_run, name, nth,
+                                                                        good):
+    """kill -9 halfway through writing a checkpoint's files: the previous checkpoint stays readable, and
+    --resume continues from it to the same log and policy as the uninterrupted run (issue 9).
+
+    "last-policy" dies after the final checkpoint.npz but before policy.npz: nothing is left to train,
+    yet --resume must still bring policy.npz and log.csv up to the checkpoint.
+    """
+    run = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-c", KILL_MID_WRITE, name, str(nth),
+                           *tiny_args(run, *CHEAP, "--iterations", "2", "--backend", "serial")],
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
+    assert proc.returncode == -signal.SIGKILL, proc.stdout
+    leftover = list(run.glob(f".{name}{TEMPORARY_MARK}*"))
+    assert len(leftover) == 1 and 0 < leftover[0].stat().st_size  # died inside the write
+    with pytest.raises(ConfigError):
+        read_npz(leftover[0])
+    assert checkpoint_iterations(run) == good  # the last good checkpoint, read without pickle
+    load_policy(run / "policy.npz")  # whole, if perhaps one checkpoint behind
+    resumed = train_es("--resume", str(run), "--iterations", "2")
+    out, _ = resumed.communicate(timeout=300)
+    assert resumed.returncode == 0 and f"resuming at iteration {good}" in out, out
+    assert not [p.name for p in run.iterdir() if ".tmp" in p.name]  # the half-written file is gone
+    assert log_rows(run) == log_rows(cheap_straight_run)
+    for policy_file in ("policy.npz", "best_policy.npz"):
+        a, _ = load_policy(run / policy_file)
+        b, _ = load_policy(cheap_straight_run / policy_file)
+        np.testing.assert_array_equal(a.params, b.params)
+    assert int(read_npz(run / "policy.npz")["iteration"]) == 2
 
 
 def test_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(tmp_path):

@@ -33,6 +33,7 @@ ACTION_SIZE = 8  # f, 3 x sin, 3 x cos, p_swing
 FORMAT_VERSION = 1
 MAX_NPZ_BYTES = 1 << 30  # uncompressed size read_npz accepts by default (training checkpoints)
 MAX_POLICY_BYTES = 64 << 20  # a policy file: the largest network (4096 hidden units) needs about 2 MB
+TEMPORARY_MARK = ".tmp-"  # write_npz_atomically's temporary file: .<name>.tmp-<pid> beside <name>
 VALUE_BOUND = 1e6  # |weights|, |obs_mean| and 1 / obs_std in a policy file (trained ones are O(1))
 
 
@@ -137,7 +138,7 @@ def save_policy(path: str | os.PathLike, policy: NetworkPolicy, config: TrainCon
 def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """np.savez into ``path`` so that a crash at any moment leaves the old file or the new one."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp = path.with_name(f".{path.name}{TEMPORARY_MARK}{os.getpid()}")
     try:
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
@@ -146,6 +147,19 @@ def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def remove_stale_temporaries(folder: Path) -> list[Path]:
+    """Delete the temporary files write_npz_atomically left in ``folder``; returns them.
+
+    A process killed mid-write (SIGKILL skips the cleanup above) leaves one behind, and the next
+    writer's has another pid in its name, so nothing else would ever remove it. Only for a folder
+    that one process writes at a time (a training run folder): a live writer's file would go too.
+    """
+    stale = sorted(folder.glob(f".*.npz{TEMPORARY_MARK}*"))
+    for tmp in stale:
+        tmp.unlink(missing_ok=True)
+    return stale
 
 
 def read_npz(path: str | os.PathLike, what: str = "file", max_bytes: int = MAX_NPZ_BYTES) -> dict[str, np.ndarray]:

@@ -10,7 +10,9 @@ A run folder (default ``runs/<algorithm>-<time>/``) holds: ``config.yaml`` (the 
 as its return history, written atomically every ``trainer.checkpoint_every`` iterations and on
 Ctrl-C), ``policy.npz`` (the current mean policy) and ``best_policy.npz`` (the mean policy with
 the best evaluation return so far). ``--resume`` replays the checkpoint and continues exactly where
-the run stopped; iterations after the last checkpoint are redone identically.
+the run stopped; iterations after the last checkpoint are redone identically. It first removes the
+temporary files of a session killed mid-write and rewrites policy.npz, log.csv and the curve from
+the checkpoint (a kill between checkpoint.npz and them leaves them one checkpoint behind).
 """
 
 from __future__ import annotations
@@ -30,7 +32,13 @@ from a1_common.config import ConfigError
 from tqdm import tqdm
 
 from gait_policy_node.es import Optimizer, make_optimizer, restore
-from gait_policy_node.learned_policy import NetworkPolicy, read_npz, save_policy, write_npz_atomically
+from gait_policy_node.learned_policy import (
+    NetworkPolicy,
+    read_npz,
+    remove_stale_temporaries,
+    save_policy,
+    write_npz_atomically,
+)
 from gait_policy_node.rollout_workers import EpisodeStats, Evaluator, RolloutTask, make_evaluator
 from gait_policy_node.train_config import TrainConfig, load_train_config
 
@@ -58,6 +66,7 @@ class Trainer:
         self.return_history: list[np.ndarray] = []
         self.best_eval = -np.inf
         self.elapsed = 0.0  # wall time of earlier sessions of this run [s]
+        remove_stale_temporaries(run_dir)  # a session killed mid-write left it; it can never complete
         checkpoint = run_dir / "checkpoint.npz"
         if checkpoint.exists():
             self._load_checkpoint(checkpoint)
@@ -82,15 +91,18 @@ class Trainer:
         self.elapsed = float(data["wall_time_s"])
 
     def save_checkpoint(self) -> None:
-        """Checkpoint, policy file, CSV log and learning curve; each file replaced atomically."""
-        mean = self.optimizer.mean
+        """Checkpoint, then the policy file, CSV log and learning curve; each file replaced atomically."""
         history = np.array(self.return_history, dtype=float).reshape(len(self.return_history), -1)
         write_npz_atomically(self.run_dir / "checkpoint.npz", {
             "algorithm": np.array(self.config.trainer.algorithm), "config_hash": np.array(self.config.policy_hash()),
             "return_history": history, "log": np.array(self.rows, dtype=float).reshape(len(self.rows), -1),
             "best_eval_return": np.array(self.best_eval), "wall_time_s": np.array(self._wall_time()),
-            "mean": mean})
-        self.policy.set_params(mean)
+            "mean": self.optimizer.mean})
+        self._write_outputs()
+
+    def _write_outputs(self) -> None:
+        """policy.npz, log.csv and the learning curve as of the current iteration (what a checkpoint holds)."""
+        self.policy.set_params(self.optimizer.mean)
         save_policy(self.run_dir / "policy.npz", self.policy, self.config, self.iteration)
         self._write_log()
         plot_learning_curve(self.rows, self.run_dir / "learning_curve.png", self.config.trainer.algorithm)
@@ -114,6 +126,8 @@ class Trainer:
         cfg = self.config.trainer
         total = iterations or cfg.iterations
         self._session_start = time.monotonic()
+        if self.iteration:  # resumed: a kill -9 between checkpoint.npz and these may have left them behind it
+            self._write_outputs()
         if self.evaluator is None:
             self.evaluator = make_evaluator(self.config)
         bar = tqdm(total=total, initial=self.iteration, desc=f"train_es {cfg.algorithm}", unit="it",
