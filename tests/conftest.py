@@ -91,7 +91,20 @@ def fuzz_cases() -> dict[str, collections.Counter]:
     return _FUZZ_CASES
 
 
+_FAULT_SCENARIOS: list[dict] = []
+
+
+@pytest.fixture(scope="session")
+def fault_scenarios() -> list[dict]:
+    """Outcome rows of the fault-injection scenarios (tests/test_fault_scenarios.py), printed at the end."""
+    return _FAULT_SCENARIOS
+
+
 def pytest_terminal_summary(terminalreporter) -> None:
+    if _FAULT_SCENARIOS:
+        terminalreporter.section("fault-injection scenarios")
+        for row in _FAULT_SCENARIOS:
+            terminalreporter.write_line(" | ".join(f"{k}: {v}" for k, v in row.items()))
     if not _FUZZ_CASES:
         return
     terminalreporter.section("fuzz cases tried")

@@ -2,13 +2,20 @@
 
 from __future__ import annotations
 
+import itertools
 import os
 import signal
 import subprocess
 from pathlib import Path
 
+import numpy as np
+from ros_helpers import spin_until
+from std_srvs.srv import SetBool
+
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config"
+DAMPING_KD = 2.0  # config/a1_robot.yaml damping_kd [N m s/rad]
+MOTOR_TORQUE_LIMIT = 33.5  # [N m]
 
 
 def executable(pkg: str, exe: str) -> str:
@@ -17,32 +24,73 @@ def executable(pkg: str, exe: str) -> str:
     return str(path)
 
 
-class Graph:
-    """Processes in their own sessions, logs under ``log_dir``; ``stop`` ends every one of them."""
+# Who publishes each topic a fault relay can sit on, and its message type.
+TOPICS = {
+    "/joint_states": ("sim_bridge", "sensor_msgs/msg/JointState"),
+    "/imu/data": ("sim_bridge", "sensor_msgs/msg/Imu"),
+    "/foot_contacts": ("sim_bridge", "gait_msgs/msg/FootContacts"),
+    "/odom": ("state_estimator", "nav_msgs/msg/Odometry"),
+    "/motor_command": ("convex_mpc", "gait_msgs/msg/MotorCommand"),
+    "/gait/params": ("gait_policy", "gait_msgs/msg/GaitParams"),
+}
 
-    def __init__(self, log_dir: Path) -> None:
+
+class Graph:
+    """Processes in their own sessions, logs under ``log_dir``; ``stop`` ends every one of them.
+
+    ``faults`` maps a topic of TOPICS to fault_relay parameters (``name: value``): its publisher
+    is remapped to the relay's input and a relay process injects the faults.
+    """
+
+    def __init__(self, log_dir: Path, faults: dict[str, dict] | None = None) -> None:
         self.log_dir = log_dir
         self.procs: dict[str, subprocess.Popen] = {}
+        self.commands: dict[str, list[str]] = {}
+        self.faults = faults or {}
+        self.publishers = {topic: publisher for topic, (publisher, _) in TOPICS.items()}
+        unknown = set(self.faults) - set(TOPICS)
+        assert not unknown, f"no fault relay for {unknown}; topics: {sorted(TOPICS)}"
 
     def start(self, name: str, pkg: str, exe: str, *args: str) -> subprocess.Popen:
-        log = open(self.log_dir / f"{name}.log", "w")
-        proc = subprocess.Popen([executable(pkg, exe), *args], stdout=log, stderr=subprocess.STDOUT,
-                                start_new_session=True)
+        remaps = [a for topic in self.faults if self.publishers[topic] == name
+                  for a in ("-r", f"{topic}:=/fault_in{topic}")]
+        if remaps:
+            args = (*args, *([] if "--ros-args" in args else ["--ros-args"]), *remaps)
+        self.commands[name] = [executable(pkg, exe), *args]
+        return self.restart(name)
+
+    def restart(self, name: str) -> subprocess.Popen:
+        """Start ``name`` again with the command line it had (after a kill)."""
+        log = open(self.log_dir / f"{name}.log", "a")
+        proc = subprocess.Popen(self.commands[name], stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         self.procs[name] = proc
         return proc
 
-    def start_stack(self, clock: str = "lockstep", lockstep_timeout: float = 0.5, *controller_params: str) -> None:
-        """Sim bridge, estimator, controller, gait policy; ``controller_params`` are extra ``name:=value``
-        for the controller (with ``embedded_estimator:=true`` no state_estimator process starts)."""
+    def start_stack(self, clock: str = "lockstep", lockstep_timeout: float = 0.5, *controller_params: str,
+                    policy_params: tuple[str, ...] = ()) -> None:
+        """Sim bridge, estimator, controller, gait policy (and any fault relays); ``controller_params``
+        and ``policy_params`` are extra ``name:=value`` (with ``embedded_estimator:=true`` no
+        state_estimator process starts, and the controller publishes /odom)."""
+        embedded = "embedded_estimator:=true" in controller_params
+        if embedded:
+            self.publishers["/odom"] = "convex_mpc"
+        for topic, params in self.faults.items():
+            message_type = TOPICS[topic][1]
+            name = "fault_relay" + topic.replace("/", "_")
+            relay = ["--ros-args", "-r", f"__node:={name}", "-p", f"topic:={topic}",
+                     "-p", f"message_type:={message_type}",
+                     *[a for key, value in params.items() for a in ("-p", f"{key}:={value}")]]
+            self.start(name, "fault_injection", "fault_relay", *relay)
         sim = ["--ros-args", "--params-file", str(CONFIG / "a1_sim_bridge.yaml"), "-p", f"clock_mode:={clock}",
                "-p", f"lockstep_timeout:={lockstep_timeout}"]
         self.start("sim_bridge", "a1_sim_bridge", "sim_bridge", *sim)
-        if "embedded_estimator:=true" not in controller_params:
+        if not embedded:
             self.start("state_estimator", "state_estimator_node", "state_estimator", "--ros-args", "--params-file",
                        str(CONFIG / "state_estimator.yaml"), "-p", "use_sim_time:=true")
         self.start_controller(*controller_params)
+        extra = [a for p in policy_params for a in ("-p", p)]
         self.start("gait_policy", "gait_policy_node", "gait_policy", "--ros-args", "--params-file",
-                   str(CONFIG / "gait_policy.yaml"), "-p", "use_sim_time:=true")
+                   str(CONFIG / "gait_policy.yaml"), "-p", "use_sim_time:=true", *extra)
 
     def start_controller(self, *params: str) -> None:
         extra = [a for p in params for a in ("-p", p)]
@@ -73,3 +121,25 @@ class Graph:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait(timeout=10)
         self.procs.clear()
+
+
+def damping_onset(joints: list[tuple[float, np.ndarray, np.ndarray]], after: float) -> float | None:
+    """Sim time of the first step after ``after`` whose applied torques are damping's, or None.
+
+    ``joints``: (stamp, joint velocity, joint effort) of /joint_states. Damping's signature: the
+    torque applied over a step is -kd * (the joint velocity at its start), clipped to the motor limit.
+    """
+    for (_, dq0, _), (t1, _, tau1) in itertools.pairwise(joints):
+        if t1 > after and np.allclose(tau1, np.clip(-DAMPING_KD * dq0, -MOTOR_TORQUE_LIMIT, MOTOR_TORQUE_LIMIT),
+                                      atol=1e-6):
+            return t1
+    return None
+
+
+def set_sim_paused(executor, node, paused: bool) -> None:
+    """Pause or resume the sim bridge (its ~/pause service), e.g. while a killed node restarts."""
+    client = node.create_client(SetBool, "/sim_bridge/pause")
+    assert client.wait_for_service(timeout_sec=10.0)
+    future = client.call_async(SetBool.Request(data=paused))
+    assert spin_until(executor, future.done, 10.0) and future.result().success
+    node.destroy_client(client)

@@ -7,6 +7,7 @@ import osqp
 import pytest
 import scipy.linalg
 import scipy.sparse as sp
+from a1_common.config import ConfigError
 from a1_common.kinematics import foot_positions
 from a1_common.robot import a1
 from convex_mpc_node.mpc import (
@@ -147,6 +148,18 @@ def test_unsolved_qp_falls_back_to_static_forces():
     share = config.mass * config.gravity / 3
     np.testing.assert_allclose(sol.forces[:, 2], [share, 0.0, share, share])
     assert np.all(np.isfinite(sol.forces))
+
+
+def test_injected_failures_take_the_fallback_path_then_stop():
+    mpc = ConvexMpc()
+    plan = np.ones((mpc.config.horizon, 4), dtype=bool)
+    command = MpcCommand(np.zeros(2), 0.0, 0.26)
+    mpc.inject_failures(3)
+    results = [mpc.solve(make_state(), command, plan) for _ in range(4)]
+    assert [r.fallback for r in results] == [True, True, True, False]
+    assert results[0].status == "injected failure" and results[3].solved
+    with pytest.raises(ConfigError, match="inject_qp_failures"):
+        mpc.inject_failures(-1)
 
 
 def test_bad_contact_plan_shape():

@@ -27,10 +27,10 @@ def make(**config) -> ControllerSupervisor:
     return ControllerSupervisor(LocomotionController(GAITS["slow_trot"]), SupervisorConfig(**config))
 
 
-def run(sup: ControllerSupervisor, start: float, seconds: float, fresh: bool = True, obs=None):
+def run(sup: ControllerSupervisor, start: float, seconds: float, fresh: bool = True, obs=None, backup=False):
     result = None
     for k in range(round(seconds / DT)):
-        result = sup.step(start + k * DT, obs or standing_obs(), velocity_fresh=fresh)
+        result = sup.step(start + k * DT, obs or standing_obs(), velocity_fresh=fresh, backup_velocity=backup)
     return result
 
 
@@ -78,6 +78,26 @@ def test_stale_estimate_holds_a_safe_stance_and_recovers():
     assert np.all(stale.command.kp > 0)  # joint PD: a stance, not a collapse
     assert sup.safe_stand_steps > 0
     assert run(sup, 0.5, 0.05).state == "walk"
+
+
+def test_stale_estimate_with_a_backup_stops_under_control_then_holds_a_safe_stance():
+    sup = make(stand_time=0.1, input_timeout=0.05, max_acceleration=10.0, stop_deceleration=2.0,
+               cmd_vel_timeout=0.0)
+    sup.on_cmd_vel(1.5, 0.0, 0.0, now=0.0)
+    assert run(sup, 0.0, 0.5).velocity_command.vx == pytest.approx(1.5)
+    # /odom stops at t = 0.5: walking goes on for input_timeout, then the stop at 2 m/s^2 ...
+    stopping = run(sup, 0.5, 0.5, fresh=False, backup=True)
+    assert stopping.state == "stopping" and stopping.velocity_command.vx == pytest.approx(1.5 - 2.0 * 0.45, abs=0.01)
+    assert np.any(stopping.command.torque)  # still the MPC's stance forces, not a joint hold
+    # ... reaches zero 0.75 s after it began, trots in place STOP_SETTLE_TIME, then the safe stance.
+    assert run(sup, 1.0, 0.7, fresh=False, backup=True).state == "stopping"
+    held = run(sup, 1.7, 0.1, fresh=False, backup=True)
+    assert held.state == "safe_stand" and not np.any(held.command.torque)
+    assert sup.stopping_steps > 0
+    assert run(sup, 1.8, 0.3).state == "walk"  # /odom back: stands up, walks again
+    # Without a walking robot there is nothing to stop: straight to the safe stance.
+    idle = make(stand_time=0.1, input_timeout=0.05)
+    assert run(idle, 0.0, 0.2, fresh=False, backup=True).state == "safe_stand"
 
 
 def test_cmd_vel_validation_clamp_and_acceleration_limit():

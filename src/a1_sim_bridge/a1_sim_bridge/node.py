@@ -83,6 +83,9 @@ class SimBridgeNode(Node):
         self._rate_window = (time.monotonic(), 0)
         self._achieved_rate = 0.0
         self._overruns = 0
+        self._uncommanded_steps = 0  # steps applied with no command accepted since the step before
+        self._accepted_at_last_step = 0
+        self._lowest_base_height = float("inf")  # [m] since the last /diagnostics
         self.failure: Exception | None = None
         self._thread = threading.Thread(target=self._loop, name="sim_loop", daemon=True)
         self.get_logger().info(
@@ -176,6 +179,9 @@ class SimBridgeNode(Node):
                                     self._lock.acquire()
                                 continue
                     command = self.watchdog.active(self.sim.time)
+                    # A missed 2 ms deadline, as the robot sees it: nothing new to apply this step.
+                    self._uncommanded_steps += self.watchdog.accepted == self._accepted_at_last_step
+                    self._accepted_at_last_step = self.watchdog.accepted
                     readings = self.sim.step(command)
                 self._publish(readings)
                 if self.clock_mode == "realtime":
@@ -215,7 +221,9 @@ class SimBridgeNode(Node):
         stamp = cv.stamp_from_ns(self.sim.steps * self.dt_ns)
         self.pub_clock.publish(Clock(clock=stamp))
         if self.publish_ground_truth:
-            self.pub_truth.publish(cv.ground_truth_msg(self.sim.ground_truth(), stamp))
+            truth = self.sim.ground_truth()
+            self._lowest_base_height = min(self._lowest_base_height, float(truth.base_position[2]))
+            self.pub_truth.publish(cv.ground_truth_msg(truth, stamp))
         self.pub_imu.publish(cv.imu_msg(readings, stamp))
         self.pub_contacts.publish(cv.foot_contacts_msg(readings, stamp))
         # Joint states last: in lockstep a controller may take it as "this step's sensors are out".
@@ -243,7 +251,10 @@ class SimBridgeNode(Node):
             "last_rejection": wd.last_error, "damping_fallbacks": wd.timeouts,
             "late_commands": self._late_commands, "lockstep_timeouts": self._lockstep_timeouts,
             "realtime_overruns": self._overruns, "paused": self._paused,
+            "uncommanded_steps": self._uncommanded_steps,
+            "lowest_base_height_m": f"{self._lowest_base_height:.3f}" if self.publish_ground_truth else "n/a",
         }
+        self._lowest_base_height = float("inf")
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = cv.stamp_from_ns(self.sim.steps * self.dt_ns)

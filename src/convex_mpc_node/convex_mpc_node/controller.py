@@ -50,6 +50,11 @@ class ControllerConfig:
     # never across a change of the measured contact set, the last forces are reused. Larger values
     # trade force-plan freshness for CPU, for realtime graphs on small computers.
     mpc_period_steps: int = 1
+    # Joint positions are predicted this far ahead (q + dq * t) before use [s]: the command acts
+    # on a later state than the sensors saw (transport, compute, actuation). Measured in the
+    # fault scenarios: without it 20 ms of joint-state latency makes the robot fall; 0.01 s
+    # tolerates 0 to 20 ms. 0: the paper's controller.
+    latency_compensation: float = 0.01
     mpc: MpcConfig = field(default_factory=MpcConfig)
 
     def validated(self) -> ControllerConfig:
@@ -64,6 +69,7 @@ class ControllerConfig:
         require_range("max_position_error", self.max_position_error, 0.0, 1.0)
         require_range("max_yaw_error", self.max_yaw_error, 0.0, math.pi)
         require_integer("mpc_period_steps", self.mpc_period_steps, 1, 25)
+        require_range("latency_compensation", self.latency_compensation, 0.0, 0.05)
         return self
 
 
@@ -111,8 +117,9 @@ def load_controller_config(path=None, ignore: frozenset[str] = frozenset()) -> C
 
 # Keys of config/convex_mpc.yaml that configure the supervisor and the node, not the controller core.
 NODE_ONLY_PARAMETERS = frozenset({
-    "mode", "stand_time", "input_timeout", "gait_timeout", "cmd_vel_timeout", "max_acceleration",
+    "mode", "stand_time", "input_timeout", "gait_timeout", "cmd_vel_timeout", "max_acceleration", "stop_deceleration",
     "max_forward_speed", "max_lateral_speed", "max_yaw_rate", "cmd_vel_stamped", "mass_for_cot",
+    "embedded_estimator", "estimator_failover", "inject_qp_failures",
 })
 
 
@@ -176,7 +183,7 @@ class LocomotionController:
         """One control step: compute the joint command for ``obs``, then advance the phases by dt."""
         cfg = self.config
         robot = self.robot
-        q = np.asarray(obs.joint_position, dtype=float)
+        q = np.asarray(obs.joint_position, dtype=float) + cfg.latency_compensation * np.asarray(obs.joint_velocity)
         rot = quat_to_matrix(np.asarray(obs.orientation, dtype=float))  # base -> world
         yaw = np.arctan2(rot[1, 0], rot[0, 0])
         cy, sy = np.cos(yaw), np.sin(yaw)

@@ -9,7 +9,8 @@ no /joint_states there is nothing to command: the bridge's own watchdog damps th
 
 Inputs: /cmd_vel (geometry_msgs/Twist, or TwistStamped with ``cmd_vel_stamped``), /gait/params,
 /joint_states, /imu/data, /foot_contacts, /odom; /estop (std_msgs/Bool, true latches damping) and
-~/clear_estop (std_srvs/Trigger). Runtime parameter ``mode``: stand | walk | damping.
+~/clear_estop (std_srvs/Trigger). Runtime parameters: ``mode`` (stand | walk | damping) and, for
+fault-injection tests, ``inject_qp_failures`` (setting N makes the next N MPC solves fail).
 
 With ``embedded_estimator`` the node runs the state estimator's core itself (parameters from
 config/state_estimator.yaml) as soon as a step's three sensor messages are in, and publishes /odom
@@ -53,7 +54,9 @@ from gait_msgs.msg import FootContacts, GaitState, MotorCommand
 from gait_msgs.msg import GaitParams as GaitParamsMsg
 
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-NODE_PARAMETERS = {"cmd_vel_stamped": False, "mass_for_cot": 12.458, "embedded_estimator": False}
+NODE_PARAMETERS = {"cmd_vel_stamped": False, "mass_for_cot": 12.458, "embedded_estimator": False,
+                   "estimator_failover": True, "inject_qp_failures": 0}
+RUNTIME_PARAMETERS = ("mode", "inject_qp_failures")
 
 
 def _supervisor_defaults() -> dict:
@@ -85,8 +88,15 @@ class ConvexMpcNode(Node):
         self._missed = 0
         self._steps = 0
         self._state = "waiting"
+        self._inject_qp_failures(params["inject_qp_failures"])
         self.frontend = OdometryFrontend(load_estimator_config()) if params["embedded_estimator"] else None
         self._done_ns = -1  # embedded estimator: the last sensor step handled
+        # Failover: with /odom stale, the estimator core here, started from the last /odom velocity,
+        # carries the robot through a controlled stop (supervisor "stopping") before the safe stance.
+        self.backup = (OdometryFrontend(load_estimator_config())
+                       if params["estimator_failover"] and self.frontend is None else None)
+        self._odom_velocity = np.zeros(3)  # world frame [m/s], the last /odom's
+        self._on_backup = False
 
         self.pub_command = self.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
         self.pub_state = self.create_publisher(GaitState, "/gait/state", CONTROL_QOS)
@@ -146,14 +156,23 @@ class ConvexMpcNode(Node):
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         for param in params:
-            if param.name != "mode":
-                return SetParametersResult(successful=False,
-                                           reason=f"{param.name} cannot change at runtime; only 'mode' can")
+            if param.name not in RUNTIME_PARAMETERS:
+                return SetParametersResult(successful=False, reason=f"{param.name} cannot change at runtime; "
+                                                                    f"runtime parameters: {list(RUNTIME_PARAMETERS)}")
             try:
-                self.supervisor.set_mode(coerce_parameter("mode", param.value, ""))
+                if param.name == "mode":
+                    self.supervisor.set_mode(coerce_parameter("mode", param.value, ""))
+                else:
+                    self._inject_qp_failures(coerce_parameter(param.name, param.value, 0))
             except ConfigError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
+
+    def _inject_qp_failures(self, count: int) -> None:
+        """Fault injection: the next ``count`` MPC solves fail (the controller's fallback takes over)."""
+        self.controller.mpc.inject_failures(count)
+        if count:
+            self.get_logger().warning(f"fault injection: the next {count} MPC solves will fail")
 
     def _on_sensor(self, buffer: dict, msg) -> None:
         self._store(buffer, msg)
@@ -168,14 +187,30 @@ class ConvexMpcNode(Node):
             self._estimate_and_control(stamp_ns)
             return
         stale_odom = (stamp_ns - self._odom_ns) * 1e-9 > self.supervisor.config.input_timeout
-        if stale_odom:  # no estimate: step now, on the sensors alone (safe stance)
-            self._control(stamp_ns, None)
+        if stale_odom:  # no estimate: step now, on the backup estimate (stop) or the sensors alone
+            self._control(stamp_ns, None, self._backup_velocity(stamp_ns))
+
+    def _backup_velocity(self, stamp_ns: int) -> np.ndarray | None:
+        """World-frame velocity from the backup estimator for a stale-/odom step, or None."""
+        joints, imu, contacts = self._joints.get(stamp_ns), self._imu.get(stamp_ns), self._contacts.get(stamp_ns)
+        if self.backup is None or joints is None or imu is None or contacts is None:
+            return None
+        if not self._on_backup:
+            self.get_logger().error("/odom stale: stopping on the backup estimate, then a safe stance")
+            self.backup.estimator.reset(self._odom_velocity)
+            self._on_backup = True
+        result = self.backup.update(joints, imu, contacts)
+        return None if result is None else result[0].velocity_world
 
     def _on_odom(self, msg: Odometry) -> None:
         stamp_ns = ns_from_stamp(msg.header.stamp)
         self._odom_ns = stamp_ns
         q, tw = msg.pose.pose.orientation, msg.twist.twist.linear  # twist is in base_link: rotate to the world
         velocity = quat_to_matrix(np.array([q.x, q.y, q.z, q.w])) @ np.array([tw.x, tw.y, tw.z])
+        self._odom_velocity = velocity
+        if self._on_backup:
+            self.get_logger().info("/odom is back")
+            self._on_backup = False
         self._control(stamp_ns, velocity)
 
     def _estimate_and_control(self, stamp_ns: int) -> None:
@@ -199,18 +234,21 @@ class ConvexMpcNode(Node):
         self.pub_odom.publish(odom)  # after the motor command: off the control path
 
     # --- the control step ----------------------------------------------------------------------
-    def _control(self, stamp_ns: int, velocity_world: np.ndarray | None) -> None:
-        """One control step for the sensors stamped ``stamp_ns``; no velocity: safe-stance path."""
+    def _control(self, stamp_ns: int, velocity_world: np.ndarray | None,
+                 backup_velocity: np.ndarray | None = None) -> None:
+        """One control step for the sensors stamped ``stamp_ns``; no velocity: the backup estimate's
+        controlled stop if there is one, else the safe-stance path."""
         joints, imu, contacts = self._joints.get(stamp_ns), self._imu.get(stamp_ns), self._contacts.get(stamp_ns)
         if joints is None or imu is None or contacts is None:
             return  # this step's sensors are not all in (yet)
         t0 = time.perf_counter()
         o, w = imu.orientation, imu.angular_velocity
-        velocity = np.zeros(3) if velocity_world is None else velocity_world
+        velocity = next((v for v in (velocity_world, backup_velocity) if v is not None), np.zeros(3))
         obs = Observation(np.asarray(joints.position, dtype=float), np.asarray(joints.velocity, dtype=float),
                           np.array([o.x, o.y, o.z, o.w]), np.array([w.x, w.y, w.z]),
                           np.asarray(contacts.contact, dtype=bool), velocity)
-        result = self.supervisor.step(stamp_ns * 1e-9, obs, velocity_fresh=velocity_world is not None)
+        result = self.supervisor.step(stamp_ns * 1e-9, obs, velocity_fresh=velocity_world is not None,
+                                      backup_velocity=velocity_world is None and backup_velocity is not None)
         self.pub_command.publish(motor_command_msg(result.command, joints.header.stamp))
         elapsed = time.perf_counter() - t0
         self._steps += 1
@@ -250,6 +288,8 @@ class ConvexMpcNode(Node):
             status.level, status.message = DiagnosticStatus.ERROR, "no /joint_states: commands stopped (bridge damps)"
         elif self._state == "safe_stand":
             status.level, status.message = DiagnosticStatus.WARN, "no fresh /odom: holding a safe stance"
+        elif self._state == "stopping":
+            status.level, status.message = DiagnosticStatus.WARN, "no fresh /odom: stopping on the backup estimate"
         else:
             status.level, status.message = DiagnosticStatus.OK, self._state
         power = float(np.mean(self._powers)) if self._powers else 0.0
@@ -260,6 +300,7 @@ class ConvexMpcNode(Node):
             "step_median_ms": f"{np.median(self._step_times) * 1e3:.3f}" if self._step_times else "n/a",
             "missed_deadlines": self._missed, "mpc_fallbacks": self.controller.mpc_fallbacks,
             "gait_fallbacks": sup.gait_fallbacks, "safe_stand_steps": sup.safe_stand_steps,
+            "stopping_steps": sup.stopping_steps,
             "rejected_cmd_vel": sup.rejected_cmd_vel, "rejected_gait_params": sup.rejected_gait_params,
             "power_w": f"{power:.1f}",
             "cost_of_transport": f"{cost_of_transport(power, self.mass, speed):.3f}" if speed > 0.1 else "n/a",

@@ -6,7 +6,11 @@ Library core of the controller node (no ROS): the node only converts messages an
   DAMPING or a stale-input hold, goes through STAND for ``stand_time`` before the requested mode.
 - E-stop: latched DAMPING until cleared, whatever else arrives.
 - Stale inputs: with no base velocity estimate for ``input_timeout`` the robot holds a safe
-  stance (joint PD); when the estimate returns it stands up again and resumes.
+  stance (joint PD); when the estimate returns it stands up again and resumes. If the node has a
+  backup estimate (its own estimator core, started from the last good estimate) a walking robot
+  first comes to a controlled stop on it ("stopping": the command ramps to zero at
+  ``stop_deceleration``, then STOP_SETTLE_TIME of trotting in place) before the safe stance:
+  freezing the joints of a robot running at 1.5 m/s throws it over.
 - Commands: /cmd_vel NaN/inf is rejected, values are clamped to the limits, the target is reached
   at ``max_acceleration``, and it falls back to zero after ``cmd_vel_timeout`` (0 = never).
 - Gait: the last valid gait parameters; after ``gait_timeout`` without any, the hand-tuned gaits
@@ -34,6 +38,7 @@ from convex_mpc_node.gait import GaitParams, gait_for_speed, load_hand_tuned_gai
 
 STOOD_UP_JOINT_ERROR = 0.2  # [rad] largest joint error from the nominal pose to start walking
 STOOD_UP_TILT = np.radians(10.0)  # [rad] largest body tilt to start walking
+STOP_SETTLE_TIME = 0.5  # [s] of trotting in place at zero command before a stale-input safe stance
 # Orientations are normalised; a norm outside this range is garbage, not noise.
 MIN_QUATERNION_NORM, MAX_QUATERNION_NORM = 0.5, 2.0
 _OBSERVATION_SHAPES = (("joint_position", (NUM_JOINTS,)), ("joint_velocity", (NUM_JOINTS,)), ("orientation", (4,)),
@@ -54,6 +59,7 @@ class SupervisorConfig:
     gait_timeout: float = 0.5  # [s] without /gait/params -> hand-tuned gaits by speed
     cmd_vel_timeout: float = 2.0  # [s] without /cmd_vel -> target 0 (0 disables; ros2 topic pub sends at 1 Hz)
     max_acceleration: float = 1.0  # [m/s^2] and [rad/s^2] toward the commanded velocity
+    stop_deceleration: float = 2.0  # [m/s^2] and [rad/s^2] of a controlled stop on a backup estimate
     max_forward_speed: float = 3.0  # [m/s]
     max_lateral_speed: float = 1.0  # [m/s]
     max_yaw_rate: float = 2.0  # [rad/s]
@@ -66,6 +72,7 @@ class SupervisorConfig:
         require_range("gait_timeout", self.gait_timeout, 0.0, 60.0, low_open=True)
         require_range("cmd_vel_timeout", self.cmd_vel_timeout, 0.0, 3600.0)
         require_range("max_acceleration", self.max_acceleration, 0.0, 20.0, low_open=True)
+        require_range("stop_deceleration", self.stop_deceleration, 0.0, 20.0, low_open=True)
         require_range("max_forward_speed", self.max_forward_speed, 0.0, 5.0, low_open=True)
         require_range("max_lateral_speed", self.max_lateral_speed, 0.0, 3.0, low_open=True)
         require_range("max_yaw_rate", self.max_yaw_rate, 0.0, 6.0, low_open=True)
@@ -75,7 +82,7 @@ class SupervisorConfig:
 @dataclass
 class StepResult:
     command: JointCommand
-    state: str  # "stand", "walk", "damping", "estop", "safe_stand" (stale velocity estimate)
+    state: str  # "stand", "walk", "damping", "estop", "stopping", "safe_stand" (stale velocity estimate)
     velocity_command: VelocityCommand
 
 
@@ -90,6 +97,7 @@ class ControllerSupervisor:
         self.rejected_gait_params = 0
         self.gait_fallbacks = 0
         self.safe_stand_steps = 0
+        self.stopping_steps = 0  # steps of controlled stop on a backup velocity estimate
         self.rejected_observations = 0  # steps damped because the observation was unusable
         self.invalid_commands = 0  # controller outputs replaced by damping
         self.last_rejection = ""
@@ -102,6 +110,7 @@ class ControllerSupervisor:
         self._velocity_time = float("-inf")
         self._stand_start: tuple[float, np.ndarray] | None = None  # (time, pose) of the stand ramp
         self._walking = False
+        self._stopped_since: float | None = None  # stopping: when the command reached zero
         self._last_time: float | None = None
 
     # --- inputs --------------------------------------------------------------------------------
@@ -140,8 +149,9 @@ class ControllerSupervisor:
         return True
 
     # --- the 500 Hz step -----------------------------------------------------------------------
-    def step(self, now: float, obs: Observation, velocity_fresh: bool) -> StepResult:
-        """Command for this step. ``velocity_fresh``: obs.base_velocity is a current estimate.
+    def step(self, now: float, obs: Observation, velocity_fresh: bool, backup_velocity: bool = False) -> StepResult:
+        """Command for this step. ``velocity_fresh``: obs.base_velocity is a current estimate;
+        ``backup_velocity``: it is not, but it is the node's backup estimate (see the module docstring).
 
         Never returns a command with NaN/inf or out-of-range gains (see the module docstring).
         """
@@ -151,7 +161,7 @@ class ControllerSupervisor:
             self.last_rejection = f"observation: {problem}"
             return StepResult(JointCommand.damping(), "invalid_input", VelocityCommand(*self._command))
         obs = _normalised(obs)
-        result = self._step(now, obs, velocity_fresh)
+        result = self._step(now, obs, velocity_fresh, backup_velocity)
         problem = command_problem(result.command)
         if problem is not None:
             self.invalid_commands += 1
@@ -161,17 +171,27 @@ class ControllerSupervisor:
             return StepResult(JointCommand.damping(), "invalid_command", result.velocity_command)
         return result
 
-    def _step(self, now: float, obs: Observation, velocity_fresh: bool) -> StepResult:
+    def _step(self, now: float, obs: Observation, velocity_fresh: bool, backup_velocity: bool) -> StepResult:
         dt = 0.0 if self._last_time is None else max(now - self._last_time, 0.0)
         self._last_time = now
         if velocity_fresh:
             self._velocity_time = now
-        velocity_command = self._limited_command(now, dt)
+            self._stopped_since = None
+        stale = now - self._velocity_time > self.config.input_timeout
+        stopping = stale and backup_velocity and self._walking
+        velocity_command = self._limited_command(now, dt, stopping)
         if self.estopped or self.requested == Mode.DAMPING:
             self._stand_start = None
             self._walking = False
             return StepResult(JointCommand.damping(), "estop" if self.estopped else "damping", velocity_command)
-        if now - self._velocity_time > self.config.input_timeout:
+        if stopping:
+            if self._stopped_since is None and not np.any(self._command):
+                self._stopped_since = now
+            if self._stopped_since is None or now - self._stopped_since < STOP_SETTLE_TIME:
+                self.stopping_steps += 1
+                self.controller.set_gait(self._current_gait(now, velocity_command))
+                return StepResult(self.controller.step(obs, velocity_command), "stopping", velocity_command)
+        if stale:
             self.safe_stand_steps += 1
             self._walking = False
             return StepResult(self._stand(now, obs), "safe_stand", velocity_command)
@@ -202,12 +222,12 @@ class ControllerSupervisor:
         beta = 1.0 if self.config.stand_time == 0 else min((now - t0) / self.config.stand_time, 1.0)
         return JointCommand.hold(robot, beta * robot.nominal_joint_angles + (1 - beta) * q0)
 
-    def _limited_command(self, now: float, dt: float) -> VelocityCommand:
+    def _limited_command(self, now: float, dt: float, stopping: bool = False) -> VelocityCommand:
         cfg = self.config
         target = self._target
-        if cfg.cmd_vel_timeout > 0 and now - self._cmd_time > cfg.cmd_vel_timeout:
+        if stopping or (cfg.cmd_vel_timeout > 0 and now - self._cmd_time > cfg.cmd_vel_timeout):
             target = np.zeros(3)
-        step = cfg.max_acceleration * dt
+        step = (cfg.stop_deceleration if stopping else cfg.max_acceleration) * dt
         self._command = self._command + np.clip(target - self._command, -step, step)
         return VelocityCommand(*self._command)
 

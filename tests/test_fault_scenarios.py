@@ -1,0 +1,289 @@
+"""Fault-injection scenarios over the real node graph (issue 9): each test injects one fault into a
+robot trotting at 1.5 m/s and states its pass criterion; the outcome rows (stayed up or went to a
+safe state, time to recover) are printed at the end of the pytest run.
+
+Lockstep, so every run is the same: faults on topics come from fault_relay processes
+(src/fault_injection) timed by the messages' sim-time stamps; QP failures from the controller's
+``inject_qp_failures`` parameter; node deaths from SIGKILL. The estimator runs inside the controller
+(``embedded_estimator``) except in the scenario that kills the estimator process.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from a1_sim_bridge.conversions import ns_from_stamp
+from a1_sim_bridge.node import CONTROL_QOS
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Twist
+from graph_helpers import Graph, damping_onset, set_sim_paused
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from ros_helpers import spin_until
+from sensor_msgs.msg import JointState
+
+from gait_msgs.msg import GaitState, MotorCommand
+
+SPEED = 1.5  # [m/s] the scenarios' command
+FAULT_AT = 3.0  # [s] sim time: stand-up 1 s, 1.5 s of acceleration, 0.5 s of steady trot
+FELL_BELOW = 0.18  # [m] base height under which the robot has fallen
+TRACKING = 0.15  # recovered: 0.2 s mean speed within 15 % of the command from then on
+EMBEDDED = ("embedded_estimator:=true",)
+
+
+class Probe(Node):
+    """Sends /cmd_vel (about 20 Hz wall) and records what the scenario needs to judge it."""
+
+    def __init__(self, context, joints: bool = False, gait: bool = False) -> None:
+        super().__init__("fault_probe", context=context)
+        self.truth: list[tuple[float, float, float]] = []  # (sim time, v_x body, z)
+        self.commands: list[tuple[float, int, bool, bool]] = []  # (t, mode, finite, joint hold)
+        self.joints: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self.swing_ratio: list[tuple[float, float]] = []
+        self.diagnostics: dict[str, dict[str, str]] = {}
+        self.speed = SPEED
+        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self._pub = self.create_publisher(Twist, "/cmd_vel", reliable)
+        self._last_cmd_t = -1.0
+        self.create_subscription(Odometry, "/sim/ground_truth/odom", self._on_truth, CONTROL_QOS)
+        # Deeper than the graph's depth 1: this process is slower than the nodes and must miss little.
+        self.create_subscription(MotorCommand, "/motor_command", self._on_command, reliable)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+        if joints:
+            self.create_subscription(JointState, "/joint_states", lambda m: self.joints.append(
+                (ns_from_stamp(m.header.stamp) * 1e-9, np.array(m.velocity), np.array(m.effort))), CONTROL_QOS)
+        if gait:
+            self.create_subscription(GaitState, "/gait/state", lambda m: self.swing_ratio.append(
+                (ns_from_stamp(m.header.stamp) * 1e-9, m.params.swing_ratio)), CONTROL_QOS)
+
+    def _on_truth(self, m: Odometry) -> None:
+        t = ns_from_stamp(m.header.stamp) * 1e-9
+        self.truth.append((t, m.twist.twist.linear.x, m.pose.pose.position.z))
+        if t - self._last_cmd_t >= 0.05:  # 20 Hz of sim time: the same commands every run
+            msg = Twist()
+            msg.linear.x = self.speed
+            self._pub.publish(msg)
+            self._last_cmd_t = t
+
+    def _on_command(self, m: MotorCommand) -> None:
+        arrays = np.concatenate([m.position, m.velocity, m.kp, m.kd, m.torque])
+        hold = m.mode == MotorCommand.MODE_HYBRID and not np.any(m.torque) and bool(np.all(m.kp > 0))
+        self.commands.append((ns_from_stamp(m.header.stamp) * 1e-9, m.mode, bool(np.isfinite(arrays).all()), hold))
+
+    def _on_diagnostics(self, m: DiagnosticArray) -> None:
+        for status in m.status:
+            self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
+
+    def sim_time(self) -> float:
+        return self.truth[-1][0] if self.truth else 0.0
+
+    def lowest(self, after: float = 0.0) -> float:
+        return min(z for t, _, z in self.truth if t >= after)
+
+    def recovery_time(self, fault_end: float) -> float:
+        """Seconds after ``fault_end`` from which the 0.2 s mean speed stays within TRACKING of the
+        command to the end of the run (0: it never left); inf if it is off at the end."""
+        t, v = np.array([(t, v) for t, v, _ in self.truth]).T
+        window = max(round(0.2 / np.median(np.diff(t))), 1)
+        mean = np.convolve(v, np.ones(window) / window, mode="valid")
+        t_mean = t[window - 1:]
+        off = (t_mean >= fault_end) & (np.abs(mean - SPEED) > TRACKING * SPEED)
+        if not off.any():
+            return 0.0
+        last_off = t_mean[np.flatnonzero(off)[-1]]
+        return math.inf if last_off >= t_mean[-1] - 0.25 else float(last_off - fault_end)
+
+
+@pytest.fixture
+def scenario(tmp_path, rclpy_context, fault_scenarios):
+    """(make_graph(faults) -> Graph, probe factory, executor, report(row)); stops everything after."""
+    made: dict = {}
+
+    def make(faults: dict | None = None, joints: bool = False, gait: bool = False):
+        made["graph"] = Graph(tmp_path, faults)
+        made["probe"] = Probe(rclpy_context, joints, gait)
+        made["executor"] = SingleThreadedExecutor(context=rclpy_context)
+        made["executor"].add_node(made["probe"])
+        return made["graph"], made["probe"], made["executor"]
+
+    yield make, fault_scenarios.append
+    if made:
+        made["graph"].stop()
+        made["executor"].shutdown()
+        made["probe"].destroy_node()
+
+
+def run_until(executor, probe: Probe, graph: Graph, sim_time: float, wall_timeout: float = 240.0) -> None:
+    ok = spin_until(executor, lambda: probe.sim_time() >= sim_time or not all(graph.alive().values()),
+                    wall_timeout)
+    dead = [name for name, alive in graph.alive().items() if not alive]
+    assert not dead, f"nodes died: {dead}\n" + "\n".join(graph.log(n)[-2000:] for n in dead)
+    assert ok, f"sim reached only {probe.sim_time():.2f} s of {sim_time} s in {wall_timeout} s wall"
+
+
+def _row(name: str, fault: str, probe: Probe, outcome: str, recovery: float | None, **extra) -> dict:
+    return {"scenario": name, "fault": fault, "lowest_base_m": round(probe.lowest(1.0), 3), "outcome": outcome,
+            "recovery_s": "n/a" if recovery is None else ("never" if math.isinf(recovery) else round(recovery, 3)),
+            **extra}
+
+
+# (faults per topic, fault end [s] or None for "until the end", what it is)
+RELAY_SCENARIOS = {
+    "imu_frozen_200ms": ({"/imu/data": {"freeze_start": FAULT_AT, "freeze_duration": 0.2}}, FAULT_AT + 0.2,
+                         "IMU content frozen for 0.2 s"),
+    "imu_nan_burst_20ms": ({"/imu/data": {"nan_start": FAULT_AT, "nan_duration": 0.02}}, FAULT_AT + 0.02,
+                           "every IMU float NaN for 0.02 s"),
+    "motor_command_loss_10pct": ({"/motor_command": {"drop_probability": 0.1, "start": FAULT_AT, "seed": 1}}, None,
+                                 "10 % of /motor_command dropped"),
+    "joint_states_loss_10pct": ({"/joint_states": {"drop_probability": 0.1, "start": FAULT_AT, "seed": 2}}, None,
+                                "10 % of /joint_states dropped"),
+    "motor_command_latency_20ms": ({"/motor_command": {"delay": 0.02, "delay_mode": "steps", "start": FAULT_AT}},
+                                   None, "/motor_command 20 ms late"),
+    "joint_states_duplicated_reordered": (
+        {"/joint_states": {"duplicate_probability": 0.1, "reorder_probability": 0.1, "start": FAULT_AT, "seed": 3}},
+        None, "10 % of /joint_states duplicated, 10 % swapped with the next"),
+}
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(RELAY_SCENARIOS))
+def test_topic_fault_keeps_robot_up_and_no_nan_reaches_motors(scenario, name):
+    """Pass: the robot never falls, every /motor_command is finite, and it tracks 1.5 m/s again
+    (within 15 %) within 1.5 s of a transient fault's end, or by the last 0.25 s of a lasting one."""
+    make, report = scenario
+    faults, fault_end, what = RELAY_SCENARIOS[name]
+    graph, probe, executor = make(faults)
+    graph.start_stack("lockstep", 0.05, *EMBEDDED)
+    end = FAULT_AT + 3.0
+    run_until(executor, probe, graph, end)
+    recovery = probe.recovery_time(FAULT_AT if fault_end is None else fault_end)
+    lowest = probe.lowest(1.0)
+    report(_row(name, what, probe, "stayed up" if lowest > FELL_BELOW else "FELL", recovery))
+    assert lowest > FELL_BELOW, f"fell: base at {lowest:.3f} m"
+    assert all(finite for _, _, finite, _ in probe.commands), "a non-finite /motor_command was sent"
+    assert recovery <= (1.5 if fault_end is not None else 3.0 - 0.25), f"did not recover: {recovery}"
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_qp_failure_for_50_steps_falls_back_and_recovers(scenario):
+    """Pass: 50 failed MPC solves (static force split instead) are counted, the robot stays up and
+    tracks 1.5 m/s again within 1.5 s."""
+    make, report = scenario
+    graph, probe, executor = make()
+    graph.start_stack("lockstep", 0.05, *EMBEDDED)
+    run_until(executor, probe, graph, FAULT_AT)
+    injected_at = probe.sim_time()
+    set_parameter(executor, probe, "/convex_mpc", "inject_qp_failures", 50)
+    run_until(executor, probe, graph, injected_at + 3.0)
+    spin_until(executor, lambda: int(probe.diagnostics.get("convex_mpc", {}).get("mpc_fallbacks", 0)) >= 50, 5.0)
+    recovery = probe.recovery_time(injected_at + 0.1)
+    lowest = probe.lowest(1.0)
+    fallbacks = int(probe.diagnostics["convex_mpc"]["mpc_fallbacks"])
+    report(_row("qp_failure_50_steps", "MPC solve fails for 50 steps", probe,
+                "stayed up" if lowest > FELL_BELOW else "FELL", recovery, mpc_fallbacks=fallbacks))
+    assert fallbacks >= 50
+    assert lowest > FELL_BELOW, f"fell: base at {lowest:.3f} m"
+    assert recovery <= 1.5, f"did not recover: {recovery}"
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_controller_killed_at_1_5_mps_damps_within_50_ms(scenario):
+    """Pass: the sim bridge applies damping (the A1's safe state) within 50 ms of sim time of the
+    last command of the killed controller."""
+    make, report = scenario
+    graph, probe, executor = make(joints=True)
+    graph.start_stack("lockstep", 0.05, *EMBEDDED)
+    run_until(executor, probe, graph, FAULT_AT)
+    graph.kill("convex_mpc")
+    run_until(executor, probe, graph, probe.sim_time() + 0.1)
+    last_command = max(t for t, *_ in probe.commands)
+    onset = damping_onset(probe.joints, last_command)
+    report(_row("controller_killed", "convex_mpc SIGKILL at 1.5 m/s", probe,
+                "damping" if onset is not None else "NO DAMPING", None,
+                damping_after_s=None if onset is None else round(onset - last_command, 3)))
+    assert onset is not None, "the bridge never went to damping"
+    assert onset - last_command <= 0.05 + 0.0021  # 50 ms of sim time (+ one step of stamping)
+
+
+STOP_WITHIN = SPEED / 2.0 + 0.5 + 0.05 + 0.1  # [s] stop at stop_deceleration, settle, input_timeout, margin
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_estimator_killed_stops_then_safe_stance_then_recovers(scenario):
+    """Pass: with /odom gone, the controller stops the robot under control on its backup estimate
+    and then holds a joint-PD safe stance (no stance forces), within STOP_WITHIN of the kill; after
+    the estimator restarts the robot stands up, walks and tracks 1.5 m/s again within 4.5 s; it
+    never falls."""
+    make, report = scenario
+    graph, probe, executor = make()
+    graph.start_stack("lockstep", 0.05)
+    run_until(executor, probe, graph, FAULT_AT, wall_timeout=480)
+    graph.kill("state_estimator")
+    killed_at = probe.sim_time()
+    run_until(executor, probe, graph, killed_at + STOP_WITHIN + 0.3, wall_timeout=480)
+    safe_from = max(t for t, _, _, hold in probe.commands if not hold) + 0.002
+    held = [t for t, _, _, hold in probe.commands if t >= safe_from]
+    speed_at_stance = np.mean([v for t, v, _ in probe.truth if safe_from - 0.1 <= t <= safe_from])
+    set_sim_paused(executor, probe, True)  # the new process's start-up wall time must not count
+    graph.restart("state_estimator")
+    set_sim_paused(executor, probe, False)
+    restarted_at = probe.sim_time()
+    run_until(executor, probe, graph, restarted_at + 5.0, wall_timeout=480)
+    recovery = probe.recovery_time(restarted_at)
+    lowest = probe.lowest(1.0)
+    report(_row("estimator_killed", "state_estimator SIGKILL at 1.5 m/s, restarted when stopped", probe,
+                "controlled stop, safe stance" + (", stayed up" if lowest > FELL_BELOW else ", FELL"),
+                recovery, safe_stance_after_s=round(safe_from - killed_at, 3),
+                speed_at_stance_mps=round(float(speed_at_stance), 3)))
+    assert safe_from - killed_at <= STOP_WITHIN, "no safe stance in time"
+    assert held and held[-1] - safe_from >= 0.3, "the safe stance did not hold until the estimator came back"
+    assert abs(speed_at_stance) < 0.3, f"froze the joints at {speed_at_stance:.2f} m/s"
+    assert lowest > FELL_BELOW, f"fell: base at {lowest:.3f} m"
+    assert recovery <= 4.5, f"did not walk again: {recovery}"
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_policy_killed_keeps_last_gait_then_hand_tuned(scenario):
+    """Pass: with the policy node (fixed fly trot, swing ratio 0.6) killed, the controller keeps the
+    last gait for gait_timeout (0.5 s), then takes the hand-tuned gait for 1.5 m/s (rapid trot, 0.5);
+    the robot stays up and keeps tracking."""
+    make, report = scenario
+    graph, probe, executor = make(gait=True)
+    graph.start_stack("lockstep", 0.05, *EMBEDDED, policy_params=("policy:=fly_trot",))
+    run_until(executor, probe, graph, FAULT_AT)
+    graph.kill("gait_policy")
+    killed_at = probe.sim_time()
+    run_until(executor, probe, graph, killed_at + 2.5)
+    switched = [t for t, ratio in probe.swing_ratio if t > killed_at and ratio == pytest.approx(0.5)]
+    kept = all(ratio == pytest.approx(0.6) for t, ratio in probe.swing_ratio if killed_at - 0.5 < t < killed_at + 0.4)
+    recovery = probe.recovery_time(killed_at)
+    lowest = probe.lowest(1.0)
+    report(_row("policy_killed", "gait_policy SIGKILL at 1.5 m/s", probe,
+                "stayed up" if lowest > FELL_BELOW else "FELL", recovery,
+                hand_tuned_after_s=round(switched[0] - killed_at, 3) if switched else None))
+    assert kept, "the last valid gait was not kept until gait_timeout"
+    assert switched, "never fell back to the hand-tuned gait"
+    assert killed_at + 0.4 <= switched[0] <= killed_at + 0.5 + 0.05 + 0.004
+    assert all(ratio == pytest.approx(0.5) for t, ratio in probe.swing_ratio if t >= switched[0])
+    assert lowest > FELL_BELOW, f"fell: base at {lowest:.3f} m"
+    assert recovery <= 2.0, f"lost the speed: {recovery}"
+
+
+def set_parameter(executor, node: Node, target: str, name: str, value: int) -> None:
+    client = node.create_client(SetParameters, f"{target}/set_parameters")
+    assert client.wait_for_service(timeout_sec=10.0)
+    param = Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value))
+    future = client.call_async(SetParameters.Request(parameters=[param]))
+    assert spin_until(executor, future.done, 10.0) and future.result().results[0].successful
+    node.destroy_client(client)
