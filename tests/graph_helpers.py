@@ -47,6 +47,7 @@ class Graph:
         self.procs: dict[str, subprocess.Popen] = {}
         self.commands: dict[str, list[str]] = {}
         self.faults = faults or {}
+        self.sim_time = "true"
         self.publishers = {topic: publisher for topic, (publisher, _) in TOPICS.items()}
         unknown = set(self.faults) - set(TOPICS)
         assert not unknown, f"no fault relay for {unknown}; topics: {sorted(TOPICS)}"
@@ -72,6 +73,9 @@ class Graph:
         and ``policy_params`` are extra ``name:=value`` (with ``embedded_estimator:=true`` no
         state_estimator process starts, and the controller publishes /odom)."""
         embedded = "embedded_estimator:=true" in controller_params
+        # Sim time in lockstep only: in realtime the sim follows the wall clock, and 500 Hz /clock
+        # callbacks in every node would cost a good part of a core on a small computer.
+        self.sim_time = "true" if clock == "lockstep" else "false"
         if embedded:
             self.publishers["/odom"] = "convex_mpc"
         for topic, params in self.faults.items():
@@ -86,16 +90,16 @@ class Graph:
         self.start("sim_bridge", "a1_sim_bridge", "sim_bridge", *sim)
         if not embedded:
             self.start("state_estimator", "state_estimator_node", "state_estimator", "--ros-args", "--params-file",
-                       str(CONFIG / "state_estimator.yaml"), "-p", "use_sim_time:=true")
+                       str(CONFIG / "state_estimator.yaml"), "-p", f"use_sim_time:={self.sim_time}")
         self.start_controller(*controller_params)
         extra = [a for p in policy_params for a in ("-p", p)]
         self.start("gait_policy", "gait_policy_node", "gait_policy", "--ros-args", "--params-file",
-                   str(CONFIG / "gait_policy.yaml"), "-p", "use_sim_time:=true", *extra)
+                   str(CONFIG / "gait_policy.yaml"), "-p", f"use_sim_time:={self.sim_time}", *extra)
 
     def start_controller(self, *params: str) -> None:
         extra = [a for p in params for a in ("-p", p)]
         self.start("convex_mpc", "convex_mpc_node", "convex_mpc", "--ros-args", "--params-file",
-                   str(CONFIG / "convex_mpc.yaml"), "-p", "use_sim_time:=true", *extra)
+                   str(CONFIG / "convex_mpc.yaml"), "-p", f"use_sim_time:={self.sim_time}", *extra)
 
     def kill(self, name: str) -> None:
         proc = self.procs.pop(name)

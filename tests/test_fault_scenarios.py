@@ -124,7 +124,8 @@ def run_until(executor, probe: Probe, graph: Graph, sim_time: float, wall_timeou
                     wall_timeout)
     dead = [name for name, alive in graph.alive().items() if not alive]
     assert not dead, f"nodes died: {dead}\n" + "\n".join(graph.log(n)[-2000:] for n in dead)
-    assert ok, f"sim reached only {probe.sim_time():.2f} s of {sim_time} s in {wall_timeout} s wall"
+    assert ok, (f"sim reached only {probe.sim_time():.2f} s of {sim_time} s in {wall_timeout} s wall; "
+                f"last /diagnostics: {probe.diagnostics}")
 
 
 def _row(name: str, fault: str, probe: Probe, outcome: str, recovery: float | None, **extra) -> dict:

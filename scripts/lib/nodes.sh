@@ -73,9 +73,10 @@ start_graph() {  # <logdir> <world> <clock> <policy> [bridge]: a bridge and the 
       start_node a1_hw_bridge hw_bridge "$logdir" --ros-args --params-file "$cfg/a1_hw_bridge.yaml" ;;
     *) echo "nodes.sh: unknown bridge '$bridge' (sim, hardware, virtual)" >&2; return 1 ;;
   esac
-  # Sim time wherever a bridge publishes /clock: the sim bridge always, the hardware bridge in lockstep.
+  # Sim time in lockstep only. In realtime the sim follows the wall clock (the nodes work on the
+  # sensors' stamps), and 500 Hz /clock callbacks in every node would cost a good part of a core.
   local sim_time=false
-  if [ "$bridge" = sim ] || [ "$clock" = lockstep ]; then sim_time=true; fi
+  if [ "$clock" = lockstep ]; then sim_time=true; fi
   start_node state_estimator_node state_estimator "$logdir" --ros-args --params-file "$cfg/state_estimator.yaml" \
     -p use_sim_time:=$sim_time
   start_node convex_mpc_node convex_mpc "$logdir" --ros-args --params-file "$cfg/convex_mpc.yaml" \

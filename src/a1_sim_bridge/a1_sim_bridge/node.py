@@ -11,11 +11,13 @@ QoS of the 500 Hz topics: RELIABLE, KEEP_LAST 1, VOLATILE (see docs/architecture
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import threading
 import time
 import traceback
 
+import numpy as np
 import rclpy
 from a1_common.command import CommandWatchdog
 from a1_common.config import ConfigError, parameter_defaults, require_range
@@ -86,6 +88,10 @@ class SimBridgeNode(Node):
         self._uncommanded_steps = 0  # steps applied with no command accepted since the step before
         self._accepted_at_last_step = 0
         self._lowest_base_height = float("inf")  # [m] since the last /diagnostics
+        # Sensor-to-command latency as the robot sees it: wall time from publishing step k's
+        # sensors to receiving the command stamped k [s], over the last /diagnostics period.
+        self._published_at: collections.OrderedDict[int, float] = collections.OrderedDict()
+        self._latencies: list[float] = []
         self.failure: Exception | None = None
         self._thread = threading.Thread(target=self._loop, name="sim_loop", daemon=True)
         self.get_logger().info(
@@ -103,6 +109,9 @@ class SimBridgeNode(Node):
                                           throttle_duration_sec=1.0)
                 return
             stamp_ns = cv.ns_from_stamp(msg.header.stamp)
+            published = self._published_at.pop(stamp_ns, None)  # the first command for a step counts
+            if published is not None:
+                self._latencies.append(time.monotonic() - published)
             now_ns = self.sim.steps * self.dt_ns
             if self.clock_mode == "lockstep":
                 stale = stamp_ns != now_ns  # stamped for another step: not for this one
@@ -218,19 +227,31 @@ class SimBridgeNode(Node):
         self._publish(readings)
 
     def _publish(self, readings) -> None:
-        stamp = cv.stamp_from_ns(self.sim.steps * self.dt_ns)
-        self.pub_clock.publish(Clock(clock=stamp))
+        """This step's messages. /clock and the ground truth only when someone listens: at 500 Hz
+        every message costs CPU a realtime graph on a small computer does not have."""
+        stamp_ns = self.sim.steps * self.dt_ns
+        stamp = cv.stamp_from_ns(stamp_ns)
+        if self.pub_clock.get_subscription_count():
+            self.pub_clock.publish(Clock(clock=stamp))
         if self.publish_ground_truth:
             truth = self.sim.ground_truth()
             self._lowest_base_height = min(self._lowest_base_height, float(truth.base_position[2]))
-            self.pub_truth.publish(cv.ground_truth_msg(truth, stamp))
+            if self.pub_truth.get_subscription_count():
+                self.pub_truth.publish(cv.ground_truth_msg(truth, stamp))
         self.pub_imu.publish(cv.imu_msg(readings, stamp))
         self.pub_contacts.publish(cv.foot_contacts_msg(readings, stamp))
         # Joint states last: in lockstep a controller may take it as "this step's sensors are out".
-        self.pub_joints.publish(cv.joint_state_msg(readings, stamp, self.joint_names))
+        joints = cv.joint_state_msg(readings, stamp, self.joint_names)
+        with self._lock:  # before publishing: a fast answer must find its step
+            self._published_at[stamp_ns] = time.monotonic()
+            while len(self._published_at) > 50:  # 0.1 s: an answer later than that is no answer
+                self._published_at.popitem(last=False)
+        self.pub_joints.publish(joints)
         self._published += 1
 
     def _publish_diagnostics(self) -> None:
+        with self._lock:
+            latencies, self._latencies = self._latencies, []
         now = time.monotonic()
         t0, n0 = self._rate_window
         self._achieved_rate = (self._published - n0) / max(now - t0, 1e-9)
@@ -252,6 +273,9 @@ class SimBridgeNode(Node):
             "late_commands": self._late_commands, "lockstep_timeouts": self._lockstep_timeouts,
             "realtime_overruns": self._overruns, "paused": self._paused,
             "uncommanded_steps": self._uncommanded_steps,
+            "commanded_steps_window": len(latencies),
+            "latency_median_ms": f"{np.median(latencies) * 1e3:.3f}" if latencies else "n/a",
+            "latency_p99_ms": f"{np.percentile(latencies, 99) * 1e3:.3f}" if latencies else "n/a",
             "lowest_base_height_m": f"{self._lowest_base_height:.3f}" if self.publish_ground_truth else "n/a",
         }
         self._lowest_base_height = float("inf")

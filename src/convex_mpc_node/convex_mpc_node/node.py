@@ -24,7 +24,7 @@ import time
 from collections import deque
 
 import numpy as np
-from a1_common.config import ConfigError, parameter_defaults
+from a1_common.config import ConfigError, parameter_defaults, require_integer
 from a1_common.kinematics import quat_to_matrix
 from a1_common.node_support import coerce_parameter, declare_parameters, run_node
 from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp
@@ -55,7 +55,7 @@ from gait_msgs.msg import GaitParams as GaitParamsMsg
 
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 NODE_PARAMETERS = {"cmd_vel_stamped": False, "mass_for_cot": 12.458, "embedded_estimator": False,
-                   "estimator_failover": True, "inject_qp_failures": 0}
+                   "estimator_failover": True, "odom_every_steps": 1, "inject_qp_failures": 0}
 RUNTIME_PARAMETERS = ("mode", "inject_qp_failures")
 
 
@@ -90,6 +90,7 @@ class ConvexMpcNode(Node):
         self._state = "waiting"
         self._inject_qp_failures(params["inject_qp_failures"])
         self.frontend = OdometryFrontend(load_estimator_config()) if params["embedded_estimator"] else None
+        self.odom_every = require_integer("odom_every_steps", params["odom_every_steps"], 1, 500)
         self._done_ns = -1  # embedded estimator: the last sensor step handled
         # Failover: with /odom stale, the estimator core here, started from the last /odom velocity,
         # carries the robot through a controlled stop (supervisor "stopping") before the safe stance.
@@ -231,7 +232,8 @@ class ConvexMpcNode(Node):
         estimate, odom = result
         self._odom_ns = stamp_ns
         self._control(stamp_ns, estimate.velocity_world)
-        self.pub_odom.publish(odom)  # after the motor command: off the control path
+        if self._steps % self.odom_every == 0:  # after the motor command: off the control path
+            self.pub_odom.publish(odom)
 
     # --- the control step ----------------------------------------------------------------------
     def _control(self, stamp_ns: int, velocity_world: np.ndarray | None,
@@ -261,7 +263,8 @@ class ConvexMpcNode(Node):
         if effort.shape == joint_velocity.shape:  # efforts are optional in sensor_msgs/JointState
             self._powers.append(float(motor_power(effort, joint_velocity).sum()))
         self._speeds.append(float(np.linalg.norm(velocity[:2])))
-        self.pub_state.publish(self._gait_state(joints.header.stamp, contacts))
+        if self.pub_state.get_subscription_count():  # monitors and plots only: skipped when nobody listens
+            self.pub_state.publish(self._gait_state(joints.header.stamp, contacts))
 
     def _gait_state(self, stamp, contacts: FootContacts) -> GaitState:
         gait = self.controller.gait
