@@ -86,18 +86,26 @@ class Probe(Node):
     def lowest(self, after: float = 0.0) -> float:
         return min(z for t, _, z in self.truth if t >= after)
 
+    def _mean_speed(self) -> tuple[np.ndarray, np.ndarray]:
+        """(time, 0.2 s running mean of the forward speed) over the whole run."""
+        t, v = np.array([(t, v) for t, v, _ in self.truth]).T
+        window = max(round(0.2 / np.median(np.diff(t))), 1)
+        return t[window - 1:], np.convolve(v, np.ones(window) / window, mode="valid")
+
     def recovery_time(self, fault_end: float) -> float:
         """Seconds after ``fault_end`` from which the 0.2 s mean speed stays within TRACKING of the
         command to the end of the run (0: it never left); inf if it is off at the end."""
-        t, v = np.array([(t, v) for t, v, _ in self.truth]).T
-        window = max(round(0.2 / np.median(np.diff(t))), 1)
-        mean = np.convolve(v, np.ones(window) / window, mode="valid")
-        t_mean = t[window - 1:]
+        t_mean, mean = self._mean_speed()
         off = (t_mean >= fault_end) & (np.abs(mean - SPEED) > TRACKING * SPEED)
         if not off.any():
             return 0.0
         last_off = t_mean[np.flatnonzero(off)[-1]]
         return math.inf if last_off >= t_mean[-1] - 0.25 else float(last_off - fault_end)
+
+    def worst_speed_error(self, after: float) -> float:
+        """Largest |0.2 s mean speed - command| / command from ``after`` on [%], for the report."""
+        t_mean, mean = self._mean_speed()
+        return round(float(np.max(np.abs(mean[t_mean >= after] - SPEED))) / SPEED * 100, 1)
 
 
 @pytest.fixture
@@ -166,7 +174,8 @@ def test_topic_fault_keeps_robot_up_and_no_nan_reaches_motors(scenario, name):
     run_until(executor, probe, graph, end)
     recovery = probe.recovery_time(FAULT_AT if fault_end is None else fault_end)
     lowest = probe.lowest(1.0)
-    report(_row(name, what, probe, "stayed up" if lowest > FELL_BELOW else "FELL", recovery))
+    report(_row(name, what, probe, "stayed up" if lowest > FELL_BELOW else "FELL", recovery,
+                worst_speed_error_pct=probe.worst_speed_error(FAULT_AT)))
     assert lowest > FELL_BELOW, f"fell: base at {lowest:.3f} m"
     assert all(finite for _, _, finite, _ in probe.commands), "a non-finite /motor_command was sent"
     assert recovery <= (1.5 if fault_end is not None else 3.0 - 0.25), f"did not recover: {recovery}"
@@ -189,7 +198,8 @@ def test_qp_failure_for_50_steps_falls_back_and_recovers(scenario):
     lowest = probe.lowest(1.0)
     fallbacks = int(probe.diagnostics["convex_mpc"]["mpc_fallbacks"])
     report(_row("qp_failure_50_steps", "MPC solve fails for 50 steps", probe,
-                "stayed up" if lowest > FELL_BELOW else "FELL", recovery, mpc_fallbacks=fallbacks))
+                "stayed up" if lowest > FELL_BELOW else "FELL", recovery, mpc_fallbacks=fallbacks,
+                worst_speed_error_pct=probe.worst_speed_error(injected_at)))
     assert fallbacks >= 50
     assert lowest > FELL_BELOW, f"fell: base at {lowest:.3f} m"
     assert recovery <= 1.5, f"did not recover: {recovery}"
@@ -272,7 +282,8 @@ def test_policy_killed_keeps_last_gait_then_hand_tuned(scenario):
     lowest = probe.lowest(1.0)
     report(_row("policy_killed", "gait_policy SIGKILL at 1.5 m/s", probe,
                 "stayed up" if lowest > FELL_BELOW else "FELL", recovery,
-                hand_tuned_after_s=round(switched[0] - killed_at, 3) if switched else None))
+                hand_tuned_after_s=round(switched[0] - killed_at, 3) if switched else None,
+                worst_speed_error_pct=probe.worst_speed_error(killed_at)))
     assert kept, "the last valid gait was not kept until gait_timeout"
     assert switched, "never fell back to the hand-tuned gait"
     assert killed_at + 0.4 <= switched[0] <= killed_at + 0.5 + 0.05 + 0.004

@@ -30,7 +30,7 @@ from gait_msgs.msg import MotorCommand
 class Watcher(Node):
     """Publishes /cmd_vel at about 20 Hz (wall) and records ground truth, commands and joints."""
 
-    def __init__(self, context, record_joints_and_commands: bool = False) -> None:
+    def __init__(self, context) -> None:
         super().__init__("e2e_watcher", context=context)
         self.speed: float | None = 0.0  # None: publish nothing
         self.truth: list[tuple[float, float, float]] = []  # (sim time, v_x body, z)
@@ -40,8 +40,10 @@ class Watcher(Node):
         self._pub = self.create_publisher(Twist, "/cmd_vel", reliable)
         self._last_pub = 0.0
         self.create_subscription(Odometry, "/sim/ground_truth/odom", self._on_truth, CONTROL_QOS)
-        if not record_joints_and_commands:
-            return  # 1000 messages/s less for this process, which shares the 2 cores with the graph
+
+    def watch_joints_and_commands(self) -> None:
+        """Also record /motor_command stamps and /joint_states: 1000 messages/s more for this
+        process, which shares the 2 cores with the graph, so only for the tests that need them."""
         self.create_subscription(MotorCommand, "/motor_command",
                                  lambda m: self.commands.append(ns_from_stamp(m.header.stamp) * 1e-9), CONTROL_QOS)
         self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
@@ -68,9 +70,9 @@ class Watcher(Node):
 
 
 @pytest.fixture
-def graph(tmp_path, rclpy_context, request):
+def graph(tmp_path, rclpy_context):
     g = Graph(tmp_path)
-    watcher = Watcher(rclpy_context, record_joints_and_commands=getattr(request, "param", False))
+    watcher = Watcher(rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(watcher)
     yield g, watcher, executor
@@ -117,9 +119,9 @@ def test_paper_acceleration_profile_stays_up(graph):
 
 @pytest.mark.ros
 @pytest.mark.slow
-@pytest.mark.parametrize("graph", [True], indirect=True, ids=["recording_joints"])
 def test_controller_killed_damps_within_50_ms_then_recovers(graph):
     g, watcher, executor = graph
+    watcher.watch_joints_and_commands()
     g.start_stack("lockstep", 0.05, "embedded_estimator:=true")
     watcher.speed = 1.0
     run_until(executor, watcher, g, 3.0, wall_timeout=180)

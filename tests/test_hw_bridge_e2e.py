@@ -15,9 +15,9 @@ import socket
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from graph_helpers import CONFIG, Graph
+from graph_helpers import CONFIG, DAMPING_KD, MOTOR_TORQUE_LIMIT, Graph
 from ros_helpers import spin_until
-from test_graph_e2e import DAMPING_KD, graph, run_until  # noqa: F401 (graph: the fixture)
+from test_graph_e2e import graph, run_until  # noqa: F401 (graph: the fixture)
 
 STAND_UP_DONE = 2.5  # [s] robot time: bridge stand-up 1.5 s, then the controller's 1 s stand ramp
 
@@ -52,7 +52,7 @@ def first_damped_tick(joints: list[tuple[float, np.ndarray, np.ndarray]], after:
     times = np.array([t for t, _, _ in joints])
     velocity = np.array([v for _, v, _ in joints])
     effort = np.array([e for _, _, e in joints])
-    damping = np.clip(-DAMPING_KD * velocity[:-1], -33.5, 33.5)
+    damping = np.clip(-DAMPING_KD * velocity[:-1], -MOTOR_TORQUE_LIMIT, MOTOR_TORQUE_LIMIT)
     damped = np.all(np.abs(effort[1:] - damping) <= 4e-3, axis=1) & (times[1:] > after)
     hits = np.flatnonzero(damped)
     return float(times[1:][hits[0]]) if hits.size else None
@@ -62,6 +62,7 @@ def first_damped_tick(joints: list[tuple[float, np.ndarray, np.ndarray]], after:
 def hil(request):
     """The e2e graph fixture (process graph, watcher node, executor), plus the latest /diagnostics by name."""
     g, watcher, executor = request.getfixturevalue("graph")
+    watcher.watch_joints_and_commands()
     diagnostics: dict[str, dict[str, str]] = {}
 
     def on_diagnostics(msg: DiagnosticArray) -> None:
