@@ -51,6 +51,13 @@ def test_drop_is_seeded_and_only_inside_its_window():
     assert 30 <= len(lost) <= 70  # about 10 % of 500
 
 
+def test_windows_count_from_the_first_message_so_wall_clock_stamps_work():
+    injector = FaultInjector(FaultConfig(drop_probability=1.0, start=0.1005, end=0.2005))
+    wall = 1.7e9  # [s] a hardware bridge's stamps (resolution about 0.2 us at this size)
+    kept = [k for k in range(200) if injector.on_message(joint_state(k), wall + k * 0.002, 0.0)]
+    assert kept == list(range(51)) + list(range(101, 200))
+
+
 def test_duplicate_and_reorder_lose_nothing():
     injector = FaultInjector(FaultConfig(duplicate_probability=0.2, reorder_probability=0.2, seed=3))
     out = steps(feed(injector, 500) + feed(injector, 1, start=500))  # one more to release a held message
@@ -111,6 +118,8 @@ def test_nan_burst_poisons_every_float_and_nothing_else():
 def test_bad_config_names_the_field(field, value, expected):
     with pytest.raises(ConfigError, match=expected):
         FaultConfig(**{field: value}).validated()
+    with pytest.raises(ConfigError, match="multiple of period"):  # 1.5 steps cannot be delayed in lockstep
+        FaultConfig(delay=0.003, delay_mode="steps").validated()
 
 
 @pytest.mark.parametrize(("name", "expected"), [

@@ -91,10 +91,13 @@ def test_stale_estimate_with_a_backup_stops_under_control_then_holds_a_safe_stan
     assert np.any(stopping.command.torque)  # still the MPC's stance forces, not a joint hold
     # ... reaches zero 0.75 s after it began, trots in place STOP_SETTLE_TIME, then the safe stance.
     assert run(sup, 1.0, 0.7, fresh=False, backup=True).state == "stopping"
-    held = run(sup, 1.7, 0.1, fresh=False, backup=True)
+    held = run(sup, 1.7, 0.15, fresh=False, backup=True)
     assert held.state == "safe_stand" and not np.any(held.command.torque)
     assert sup.stopping_steps > 0
-    assert run(sup, 1.8, 0.3).state == "walk"  # /odom back: stands up, walks again
+    # /odom back: stands up, then walks again, starting from a zero command (not from 1.5 m/s).
+    back = [sup.step(1.85 + k * DT, standing_obs(), velocity_fresh=True) for k in range(100)]
+    first_walk = next(r for r in back if r.state == "walk")
+    assert first_walk.velocity_command.vx <= 10.0 * DT + 1e-9
     # Without a walking robot there is nothing to stop: straight to the safe stance.
     idle = make(stand_time=0.1, input_timeout=0.05)
     assert run(idle, 0.0, 0.2, fresh=False, backup=True).state == "safe_stand"

@@ -7,6 +7,10 @@ only) /sim/ground_truth/odom; subscribes /motor_command. Clock modes:
   (the watchdog then sends the motors to damping after ``command_timeout`` of sim time).
 - realtime: paced by the wall clock at 1/time_step; the latest valid command is applied.
 QoS of the 500 Hz topics: RELIABLE, KEEP_LAST 1, VOLATILE (see docs/architecture.md).
+/diagnostics (1 Hz) counts what the robot sees of its controller: ``uncommanded_steps``, steps
+applied with no command accepted since the step before (a missed 2 ms deadline); ``latency_*_ms``,
+wall time from publishing a step's sensors to receiving the first command stamped for it, over the
+last second, answers within 0.1 s only; ``lowest_base_height_m`` since the last report.
 """
 
 from __future__ import annotations
@@ -222,6 +226,8 @@ class SimBridgeNode(Node):
         readings = self.sim.reset(world=world, seed=seed)
         self.watchdog.clear_command()
         self._pending_stamp_ns = -1
+        self._published_at.clear()
+        self._lowest_base_height = float("inf")  # a fall before the reset is not this run's
         self._reset_requested = False
         self.get_logger().info(f"simulation reset: world={world} seed={seed}")
         self._publish(readings)
@@ -235,7 +241,8 @@ class SimBridgeNode(Node):
             self.pub_clock.publish(Clock(clock=stamp))
         if self.publish_ground_truth:
             truth = self.sim.ground_truth()
-            self._lowest_base_height = min(self._lowest_base_height, float(truth.base_position[2]))
+            with self._lock:
+                self._lowest_base_height = min(self._lowest_base_height, float(truth.base_position[2]))
             if self.pub_truth.get_subscription_count():
                 self.pub_truth.publish(cv.ground_truth_msg(truth, stamp))
         self.pub_imu.publish(cv.imu_msg(readings, stamp))
@@ -252,6 +259,7 @@ class SimBridgeNode(Node):
     def _publish_diagnostics(self) -> None:
         with self._lock:
             latencies, self._latencies = self._latencies, []
+            lowest, self._lowest_base_height = self._lowest_base_height, float("inf")
         now = time.monotonic()
         t0, n0 = self._rate_window
         self._achieved_rate = (self._published - n0) / max(now - t0, 1e-9)
@@ -276,9 +284,8 @@ class SimBridgeNode(Node):
             "commanded_steps_window": len(latencies),
             "latency_median_ms": f"{np.median(latencies) * 1e3:.3f}" if latencies else "n/a",
             "latency_p99_ms": f"{np.percentile(latencies, 99) * 1e3:.3f}" if latencies else "n/a",
-            "lowest_base_height_m": f"{self._lowest_base_height:.3f}" if self.publish_ground_truth else "n/a",
+            "lowest_base_height_m": f"{lowest:.3f}" if self.publish_ground_truth else "n/a",
         }
-        self._lowest_base_height = float("inf")
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = cv.stamp_from_ns(self.sim.steps * self.dt_ns)

@@ -183,7 +183,8 @@ class LocomotionController:
         """One control step: compute the joint command for ``obs``, then advance the phases by dt."""
         cfg = self.config
         robot = self.robot
-        q = np.asarray(obs.joint_position, dtype=float) + cfg.latency_compensation * np.asarray(obs.joint_velocity)
+        q_measured = np.asarray(obs.joint_position, dtype=float)
+        q = q_measured + cfg.latency_compensation * np.asarray(obs.joint_velocity, dtype=float)
         rot = quat_to_matrix(np.asarray(obs.orientation, dtype=float))  # base -> world
         yaw = np.arctan2(rot[1, 0], rot[0, 0])
         cy, sy = np.cos(yaw), np.sin(yaw)
@@ -261,7 +262,7 @@ class LocomotionController:
         self.gait.step(cfg.control_period)
         if not all(np.all(np.isfinite(a)) for a in (out.position, out.torque)):
             self.mpc_fallbacks += 1
-            return JointCommand.hold(robot, q if np.all(np.isfinite(q)) else None)
+            return JointCommand.hold(robot, q_measured if np.all(np.isfinite(q_measured)) else None)
         return out
 
     def _swing_target(self, leg: int, v_base: np.ndarray, yaw_rate: float, command: VelocityCommand,

@@ -57,6 +57,7 @@ COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 NODE_PARAMETERS = {"cmd_vel_stamped": False, "mass_for_cot": 12.458, "embedded_estimator": False,
                    "estimator_failover": True, "odom_every_steps": 1, "inject_qp_failures": 0}
 RUNTIME_PARAMETERS = ("mode", "inject_qp_failures")
+BACKUP_HOLD = 0.02  # [s] the backup estimate outlives refused sensor samples this long
 
 
 def _supervisor_defaults() -> dict:
@@ -98,6 +99,8 @@ class ConvexMpcNode(Node):
                        if params["estimator_failover"] and self.frontend is None else None)
         self._odom_velocity = np.zeros(3)  # world frame [m/s], the last /odom's
         self._on_backup = False
+        self._backup_sample: tuple[int, np.ndarray] | None = None  # (stamp, velocity) of its last estimate
+        self._controlled_ns = -1  # the last step a command was sent for
 
         self.pub_command = self.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
         self.pub_state = self.create_publisher(GaitState, "/gait/state", CONTROL_QOS)
@@ -177,8 +180,11 @@ class ConvexMpcNode(Node):
 
     def _on_sensor(self, buffer: dict, msg) -> None:
         self._store(buffer, msg)
+        stamp_ns = ns_from_stamp(msg.header.stamp)
         if self.frontend is not None:
-            self._estimate_and_control(ns_from_stamp(msg.header.stamp))
+            self._estimate_and_control(stamp_ns)
+        else:
+            self._step_if_odom_stale(stamp_ns)
 
     def _on_joints(self, msg: JointState) -> None:
         self._store(self._joints, msg)
@@ -186,38 +192,63 @@ class ConvexMpcNode(Node):
         stamp_ns = ns_from_stamp(msg.header.stamp)
         if self.frontend is not None:
             self._estimate_and_control(stamp_ns)
-            return
-        stale_odom = (stamp_ns - self._odom_ns) * 1e-9 > self.supervisor.config.input_timeout
-        if stale_odom:  # no estimate: step now, on the backup estimate (stop) or the sensors alone
+        else:
+            self._step_if_odom_stale(stamp_ns)
+
+    def _step_if_odom_stale(self, stamp_ns: int) -> None:
+        """No fresh /odom for this step: control it once its sensors are in, on the backup estimate
+        (controlled stop) or on the sensors alone (safe stance)."""
+        if (stamp_ns - self._odom_ns) * 1e-9 > self.supervisor.config.input_timeout and self._is_new_step(stamp_ns):
             self._control(stamp_ns, None, self._backup_velocity(stamp_ns))
 
+    def _is_new_step(self, stamp_ns: int) -> bool:
+        """``stamp_ns`` was not controlled yet. Time jumping back over 0.1 s is a sim reset: start over."""
+        if stamp_ns < self._controlled_ns - 100_000_000:
+            self._controlled_ns = self._done_ns = self._odom_ns = -1
+            self._backup_sample = None
+        return stamp_ns > self._controlled_ns
+
     def _backup_velocity(self, stamp_ns: int) -> np.ndarray | None:
-        """World-frame velocity from the backup estimator for a stale-/odom step, or None."""
+        """World-frame velocity from the backup estimator for a stale-/odom step, or None (no backup,
+        no /odom yet to start it from, or its sensors refused for longer than BACKUP_HOLD)."""
         joints, imu, contacts = self._joints.get(stamp_ns), self._imu.get(stamp_ns), self._contacts.get(stamp_ns)
-        if self.backup is None or joints is None or imu is None or contacts is None:
+        if self.backup is None or self._odom_ns < 0 or joints is None or imu is None or contacts is None:
             return None
         if not self._on_backup:
             self.get_logger().error("/odom stale: stopping on the backup estimate, then a safe stance")
             self.backup.estimator.reset(self._odom_velocity)
             self._on_backup = True
+            self._backup_sample = None
         result = self.backup.update(joints, imu, contacts)
-        return None if result is None else result[0].velocity_world
+        if result is not None:
+            self._backup_sample = (stamp_ns, result[0].velocity_world)
+        elif self._backup_sample is None or (stamp_ns - self._backup_sample[0]) * 1e-9 > BACKUP_HOLD:
+            return None  # one refused sample must not end the stop: the last estimate holds briefly
+        return self._backup_sample[1]
 
     def _on_odom(self, msg: Odometry) -> None:
         stamp_ns = ns_from_stamp(msg.header.stamp)
-        self._odom_ns = stamp_ns
-        q, tw = msg.pose.pose.orientation, msg.twist.twist.linear  # twist is in base_link: rotate to the world
-        velocity = quat_to_matrix(np.array([q.x, q.y, q.z, q.w])) @ np.array([tw.x, tw.y, tw.z])
-        self._odom_velocity = velocity
+        velocity = self._velocity_from_odom(msg)
+        if not self._is_new_step(stamp_ns):  # late (its step went the stale way) or duplicated
+            if stamp_ns > self._odom_ns:  # the estimator is alive: the next step waits for its /odom
+                self._odom_ns, self._odom_velocity = stamp_ns, velocity
+            return
+        self._odom_ns, self._odom_velocity = stamp_ns, velocity
         if self._on_backup:
             self.get_logger().info("/odom is back")
             self._on_backup = False
         self._control(stamp_ns, velocity)
 
+    @staticmethod
+    def _velocity_from_odom(msg: Odometry) -> np.ndarray:
+        """/odom's twist is in base_link: rotated to the world frame [m/s]."""
+        q, tw = msg.pose.pose.orientation, msg.twist.twist.linear
+        return quat_to_matrix(np.array([q.x, q.y, q.z, q.w])) @ np.array([tw.x, tw.y, tw.z])
+
     def _estimate_and_control(self, stamp_ns: int) -> None:
         """Embedded estimator: once this step's joints, IMU and contacts are all in, update the filter,
         publish /odom and control; a refused sample leaves the step to the safe-stance path."""
-        if stamp_ns <= self._done_ns:
+        if not self._is_new_step(stamp_ns) or stamp_ns <= self._done_ns:
             return
         joints, imu, contacts = self._joints.get(stamp_ns), self._imu.get(stamp_ns), self._contacts.get(stamp_ns)
         if joints is None or imu is None or contacts is None:
@@ -243,6 +274,7 @@ class ConvexMpcNode(Node):
         joints, imu, contacts = self._joints.get(stamp_ns), self._imu.get(stamp_ns), self._contacts.get(stamp_ns)
         if joints is None or imu is None or contacts is None:
             return  # this step's sensors are not all in (yet)
+        self._controlled_ns = stamp_ns  # one command per step, whatever path and however often called
         t0 = time.perf_counter()
         o, w = imu.orientation, imu.angular_velocity
         velocity = next((v for v in (velocity_world, backup_velocity) if v is not None), np.zeros(3))

@@ -55,7 +55,9 @@ class Mode(enum.Enum):
 class SupervisorConfig:
     mode: str = "walk"  # the requested mode after stand-up: stand | walk | damping
     stand_time: float = 1.0  # [s] ramp to the nominal pose
-    input_timeout: float = 0.05  # [s] without a velocity estimate -> safe stance
+    # [s] without a velocity estimate -> stop / safe stance; under the bridges' 50 ms command
+    # watchdog, so the controller's own reaction comes before the bridge damps the motors
+    input_timeout: float = 0.03
     gait_timeout: float = 0.5  # [s] without /gait/params -> hand-tuned gaits by speed
     cmd_vel_timeout: float = 2.0  # [s] without /cmd_vel -> target 0 (0 disables; ros2 topic pub sends at 1 Hz)
     max_acceleration: float = 1.0  # [m/s^2] and [rad/s^2] toward the commanded velocity
@@ -194,11 +196,11 @@ class ControllerSupervisor:
         if stale:
             self.safe_stand_steps += 1
             self._walking = False
-            return StepResult(self._stand(now, obs), "safe_stand", velocity_command)
+            return StepResult(self._stand(now, obs), "safe_stand", self._hold_command())
         if not self._walking and (self._stand_start is None or self.requested == Mode.STAND
                                   or now - self._stand_start[0] < self.config.stand_time
                                   or not self._stood_up(obs)):
-            return StepResult(self._stand(now, obs), "stand", velocity_command)
+            return StepResult(self._stand(now, obs), "stand", self._hold_command())
         if not self._walking:
             self.controller.reset()
             self._walking = True
@@ -221,6 +223,12 @@ class ControllerSupervisor:
         robot = self.controller.robot
         beta = 1.0 if self.config.stand_time == 0 else min((now - t0) / self.config.stand_time, 1.0)
         return JointCommand.hold(robot, beta * robot.nominal_joint_angles + (1 - beta) * q0)
+
+    def _hold_command(self) -> VelocityCommand:
+        """Standing: the shaped command stays at zero, so walking starts from rest, not from a
+        target the ramp reached while the robot stood."""
+        self._command = np.zeros(3)
+        return VelocityCommand(0.0, 0.0, 0.0)
 
     def _limited_command(self, now: float, dt: float, stopping: bool = False) -> VelocityCommand:
         cfg = self.config

@@ -1,7 +1,8 @@
 """What the fault relay does to each message of its topic: the library core (no rclpy).
 
-Faults, all optional, each in a window of the messages' own time (their header stamps, seconds;
-sim time under a sim bridge), so that a run is reproducible in lockstep:
+Faults, all optional, each in a window of the messages' own time: seconds of header stamp since
+the first message the relay received (sim time under a sim bridge, whose first stamp is 0; wall
+time under a hardware bridge), so that a run is reproducible in lockstep:
 - drop / duplicate / reorder with a probability per message (seeded), inside [start, end);
 - delay: every message held ``delay`` seconds. ``delay_mode`` "wall" holds it that long on the
   wall clock with its stamp untouched (realtime graphs). "steps" is the lockstep equivalent: the
@@ -9,6 +10,9 @@ sim time under a sim bridge), so that a run is reproducible in lockstep:
   with step k (a lockstep bridge pairs a command to its step by stamp, so a stale stamp would
   never be applied); when the delay starts, nothing goes out until the line is full, as with a
   real latency step;
+- reorder in lockstep: a bridge that waits for each step's command publishes nothing new while a
+  message is held, so a held message goes out after its successor only once the bridge stepped
+  without it (a lockstep timeout): it arrives late, behind a newer one;
 - freeze: in [freeze_start, freeze_start + freeze_duration) the content stays that of the first
   message of the window (a sensor that stopped updating), stamps advance;
 - NaN burst: in [nan_start, nan_start + nan_duration) every floating-point field is NaN (stamps
@@ -30,7 +34,7 @@ import numpy as np
 from a1_common.config import ConfigError, require_range
 
 DELAY_MODES = ("wall", "steps")
-NEVER = 1.0e9  # [s] "no window": a start later than any run
+NEVER = 1.0e9  # [s] "no window": later than any run (times count from the first message)
 
 
 @dataclass(frozen=True)
@@ -60,6 +64,9 @@ class FaultConfig:
         if self.delay_mode not in DELAY_MODES:
             raise ConfigError(f"delay_mode must be one of {list(DELAY_MODES)}, got {self.delay_mode!r}")
         require_range("period", self.period, 0.0, 1.0, low_open=True)
+        if self.delay_mode == "steps" and abs(self.delay / self.period - round(self.delay / self.period)) > 1e-6:
+            raise ConfigError(f"delay must be a multiple of period ({self.period} s) with delay_mode steps, "
+                              f"got {self.delay}")
         require_range("freeze_duration", self.freeze_duration, 0.0, 3600.0)
         require_range("nan_duration", self.nan_duration, 0.0, 3600.0)
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**32:
@@ -93,11 +100,15 @@ class FaultInjector:
         self._line: deque = deque()  # delay "steps": the last delay_steps messages
         self._timed: deque = deque()  # delay "wall": (release time, message)
         self._frozen: Any = None
+        self._first_stamp: float | None = None
 
     def on_message(self, msg: Any, stamp: float, now: float) -> list:
         """Messages to publish now, in order. ``stamp``: the message's time [s]; ``now``: wall time [s]."""
         cfg = self.config
         self.counts.received += 1
+        if self._first_stamp is None:
+            self._first_stamp = stamp
+        stamp -= self._first_stamp
         msg = self._freeze_or_poison(msg, stamp)
         active = cfg.start <= stamp < cfg.end
         if active and self._rng.random() < cfg.drop_probability:

@@ -1,0 +1,96 @@
+"""The convex_mpc node's step triggering, in process: one command per sensor step whatever arrives
+late, twice or not at all, and the estimator failover (backup estimate only after a first /odom)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from a1_sim_bridge.sim import A1Sim, SimConfig
+from convex_mpc_node.node import ConvexMpcNode
+from nav_msgs.msg import Odometry
+
+from a1_sim_bridge import conversions as cv
+
+STEP_NS = 2_000_000
+
+
+@pytest.fixture(scope="module")
+def readings():
+    sim = A1Sim(SimConfig())
+    try:
+        yield sim.sensors(), list(sim.robot.joint_names)
+    finally:
+        sim.close()
+
+
+@pytest.fixture
+def node(rclpy_context):
+    n = ConvexMpcNode(context=rclpy_context)
+    n.sent = []  # stamps of the motor commands it published
+    n.pub_command.publish = lambda msg: n.sent.append(cv.ns_from_stamp(msg.header.stamp))
+    yield n
+    n.destroy_node()
+
+
+def sensors(node: ConvexMpcNode, readings, k: int) -> None:
+    r, names = readings
+    stamp = cv.stamp_from_ns(k * STEP_NS)
+    node._on_sensor(node._imu, cv.imu_msg(r, stamp))
+    node._on_sensor(node._contacts, cv.foot_contacts_msg(r, stamp))
+    node._on_joints(cv.joint_state_msg(r, stamp, names))
+
+
+def odom(node: ConvexMpcNode, k: int, vx: float = 0.0) -> None:
+    msg = Odometry()
+    msg.header.stamp = cv.stamp_from_ns(k * STEP_NS)
+    msg.pose.pose.orientation.w = 1.0
+    msg.twist.twist.linear.x = vx
+    node._on_odom(msg)
+
+
+@pytest.mark.ros
+def test_one_command_per_step_with_odom_late_or_twice(node, readings):
+    for k in range(20):
+        sensors(node, readings, k)
+        odom(node, k)
+        odom(node, k)  # duplicated
+    assert node.sent == [k * STEP_NS for k in range(20)]
+    # /odom stops: after input_timeout (30 ms = 15 steps) the sensors alone trigger each step.
+    for k in range(20, 60):
+        sensors(node, readings, k)
+    assert node.sent[-1] == 59 * STEP_NS and len(node.sent) == len(set(node.sent))
+    assert node._on_backup
+    # /odom for a step the sensors already triggered commands nothing more, but says the estimator
+    # is back: the next step waits for its /odom again and the backup stands down.
+    sensors(node, readings, 60)
+    odom(node, 60)
+    assert node.sent.count(60 * STEP_NS) == 1 and node._on_backup
+    sensors(node, readings, 61)
+    assert node.sent[-1] == 60 * STEP_NS  # waiting for /odom of step 61
+    odom(node, 61)
+    assert node.sent[-1] == 61 * STEP_NS and not node._on_backup
+
+
+@pytest.mark.ros
+def test_sensors_in_any_order_trigger_a_stale_step_once(node, readings):
+    r, names = readings
+    for k in range(100, 105):  # past input_timeout: at start-up the estimator gets 30 ms to answer
+        stamp = cv.stamp_from_ns(k * STEP_NS)
+        node._on_joints(cv.joint_state_msg(r, stamp, names))  # joints first this time
+        node._on_sensor(node._imu, cv.imu_msg(r, stamp))
+        node._on_sensor(node._contacts, cv.foot_contacts_msg(r, stamp))
+        node._on_sensor(node._contacts, cv.foot_contacts_msg(r, stamp))  # and one twice
+    assert node.sent == [k * STEP_NS for k in range(100, 105)]
+    assert not node._on_backup  # no /odom yet: nothing to start a backup estimate from
+
+
+@pytest.mark.ros
+def test_sim_reset_starts_the_step_count_over(node, readings):
+    for k in range(100, 110):
+        sensors(node, readings, k)
+        odom(node, k)
+    for k in range(3):  # the sim bridge was reset: time starts at 0 again
+        sensors(node, readings, k)
+        odom(node, k)
+    assert node.sent[-3:] == [0, STEP_NS, 2 * STEP_NS]
+    assert np.all(np.diff(node.sent[:10]) == STEP_NS)
