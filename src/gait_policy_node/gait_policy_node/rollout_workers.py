@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import multiprocessing
 import signal
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -22,8 +21,6 @@ from gait_policy_node.env import ControlRecord, GaitEnv
 from gait_policy_node.learned_policy import NetworkPolicy
 from gait_policy_node.rollout import SpeedProfile
 from gait_policy_node.train_config import TrainConfig, train_config_from_mapping
-
-POOL_CLOSE_TIMEOUT = 10.0  # [s] for the pool to stop before its processes are killed
 
 
 @dataclass(frozen=True)
@@ -123,15 +120,8 @@ class ProcessEvaluator:
         return self._pool.map(_evaluate_in_process, tasks, chunksize=1)
 
     def close(self) -> None:
-        """Stop the workers; never hangs. Pool.terminate() can block for good when an interrupt
-        lands mid-map (seen once in CI: Ctrl-C left train_es running), so it gets POOL_CLOSE_TIMEOUT,
-        then whatever child is left is killed."""
-        closer = threading.Thread(target=self._pool.terminate, name="pool_terminate", daemon=True)
-        closer.start()
-        closer.join(POOL_CLOSE_TIMEOUT)
-        for child in multiprocessing.active_children():
-            child.kill()
-            child.join(POOL_CLOSE_TIMEOUT)
+        self._pool.terminate()
+        self._pool.join()
 
 
 class RayEvaluator:

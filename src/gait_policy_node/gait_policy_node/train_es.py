@@ -270,7 +270,10 @@ def main(argv: list[str] | None = None) -> int:
           f"population {trainer.optimizer.population_size}, {config.env.episode_steps} policy steps per episode, "
           f"backend {w.backend} ({w.resolved_count() if w.backend != 'serial' else 1} workers); run folder {run_dir}"
           + (f"; resuming at iteration {trainer.iteration}" if trainer.iteration else ""), flush=True)
-    signal.signal(signal.SIGTERM, _raise_interrupt)  # `kill` saves a checkpoint like Ctrl-C
+    # `kill` saves a checkpoint like Ctrl-C; so does SIGINT even when started with it ignored (as a
+    # non-interactive shell starts `cmd &`: without this, `kill -INT` did nothing there).
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    signal.signal(signal.SIGINT, _raise_interrupt)
     try:
         trainer.run()
     except KeyboardInterrupt:
