@@ -147,3 +147,14 @@ def set_sim_paused(executor, node, paused: bool) -> None:
     future = client.call_async(SetBool.Request(data=paused))
     assert spin_until(executor, future.done, 10.0) and future.result().success
     node.destroy_client(client)
+
+
+def run_until(executor, watcher, graph: Graph, sim_time: float, wall_timeout: float = 240.0) -> None:
+    """Spin until ``watcher.sim_time()`` reaches ``sim_time``; fail naming dead nodes (with their
+    logs' tails) or, on a timeout, the watcher's last /diagnostics if it records them."""
+    ok = spin_until(executor, lambda: watcher.sim_time() >= sim_time or not all(graph.alive().values()),
+                    wall_timeout)
+    dead = [name for name, alive in graph.alive().items() if not alive]
+    assert not dead, f"nodes died: {dead}\n" + "\n".join(graph.log(n)[-2000:] for n in dead)
+    assert ok, (f"sim reached only {watcher.sim_time():.2f} s of {sim_time} s in {wall_timeout} s wall; "
+                f"last /diagnostics: {getattr(watcher, 'diagnostics', 'not recorded')}")

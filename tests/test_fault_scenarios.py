@@ -18,7 +18,7 @@ from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
-from graph_helpers import Graph, damping_onset, set_sim_paused
+from graph_helpers import Graph, damping_onset, run_until, set_sim_paused
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
@@ -125,15 +125,6 @@ def scenario(tmp_path, rclpy_context, fault_scenarios):
         made["graph"].stop()
         made["executor"].shutdown()
         made["probe"].destroy_node()
-
-
-def run_until(executor, probe: Probe, graph: Graph, sim_time: float, wall_timeout: float = 240.0) -> None:
-    ok = spin_until(executor, lambda: probe.sim_time() >= sim_time or not all(graph.alive().values()),
-                    wall_timeout)
-    dead = [name for name, alive in graph.alive().items() if not alive]
-    assert not dead, f"nodes died: {dead}\n" + "\n".join(graph.log(n)[-2000:] for n in dead)
-    assert ok, (f"sim reached only {probe.sim_time():.2f} s of {sim_time} s in {wall_timeout} s wall; "
-                f"last /diagnostics: {probe.diagnostics}")
 
 
 def _row(name: str, fault: str, probe: Probe, outcome: str, recovery: float | None, **extra) -> dict:

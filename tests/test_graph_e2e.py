@@ -16,7 +16,7 @@ import pytest
 from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
 from geometry_msgs.msg import Twist
-from graph_helpers import ROOT, Graph, damping_onset, set_sim_paused
+from graph_helpers import ROOT, Graph, damping_onset, run_until, set_sim_paused
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -79,14 +79,6 @@ def graph(tmp_path, rclpy_context):
     g.stop()
     executor.shutdown()
     watcher.destroy_node()
-
-
-def run_until(executor, watcher, graph_, sim_time: float, wall_timeout: float) -> None:
-    ok = spin_until(executor, lambda: watcher.sim_time() >= sim_time or not all(graph_.alive().values()),
-                    wall_timeout)
-    dead = [name for name, alive in graph_.alive().items() if not alive]
-    assert not dead, f"nodes died: {dead}\n" + "\n".join(graph_.log(n)[-2000:] for n in dead)
-    assert ok, f"sim reached only {watcher.sim_time():.2f} s of {sim_time} s in {wall_timeout} s wall"
 
 
 @pytest.mark.ros

@@ -15,9 +15,9 @@ import socket
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from graph_helpers import CONFIG, DAMPING_KD, MOTOR_TORQUE_LIMIT, Graph
+from graph_helpers import CONFIG, DAMPING_KD, MOTOR_TORQUE_LIMIT, Graph, run_until
 from ros_helpers import spin_until
-from test_graph_e2e import graph, run_until  # noqa: F401 (graph: the fixture)
+from test_graph_e2e import graph  # noqa: F401 (the fixture)
 
 STAND_UP_DONE = 2.5  # [s] robot time: bridge stand-up 1.5 s, then the controller's 1 s stand ramp
 

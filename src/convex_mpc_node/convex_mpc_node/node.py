@@ -92,7 +92,6 @@ class ConvexMpcNode(Node):
         self._inject_qp_failures(params["inject_qp_failures"])
         self.frontend = OdometryFrontend(load_estimator_config()) if params["embedded_estimator"] else None
         self.odom_every = require_integer("odom_every_steps", params["odom_every_steps"], 1, 500)
-        self._done_ns = -1  # embedded estimator: the last sensor step handled
         # Failover: with /odom stale, the estimator core here, started from the last /odom velocity,
         # carries the robot through a controlled stop (supervisor "stopping") before the safe stance.
         self.backup = (OdometryFrontend(load_estimator_config())
@@ -204,22 +203,27 @@ class ConvexMpcNode(Node):
     def _is_new_step(self, stamp_ns: int) -> bool:
         """``stamp_ns`` was not controlled yet. Time jumping back over 0.1 s is a sim reset: start over."""
         if stamp_ns < self._controlled_ns - 100_000_000:
-            self._controlled_ns = self._done_ns = self._odom_ns = -1
+            self._controlled_ns = self._odom_ns = -1
             self._backup_sample = None
         return stamp_ns > self._controlled_ns
+
+    def _step_sensors(self, stamp_ns: int) -> tuple[JointState, Imu, FootContacts] | None:
+        """This step's joint state, IMU and contacts, or None while one of them is not in."""
+        joints, imu, contacts = self._joints.get(stamp_ns), self._imu.get(stamp_ns), self._contacts.get(stamp_ns)
+        return None if joints is None or imu is None or contacts is None else (joints, imu, contacts)
 
     def _backup_velocity(self, stamp_ns: int) -> np.ndarray | None:
         """World-frame velocity from the backup estimator for a stale-/odom step, or None (no backup,
         no /odom yet to start it from, or its sensors refused for longer than BACKUP_HOLD)."""
-        joints, imu, contacts = self._joints.get(stamp_ns), self._imu.get(stamp_ns), self._contacts.get(stamp_ns)
-        if self.backup is None or self._odom_ns < 0 or joints is None or imu is None or contacts is None:
+        sensors = self._step_sensors(stamp_ns)
+        if self.backup is None or self._odom_ns < 0 or sensors is None:
             return None
         if not self._on_backup:
             self.get_logger().error("/odom stale: stopping on the backup estimate, then a safe stance")
             self.backup.estimator.reset(self._odom_velocity)
             self._on_backup = True
             self._backup_sample = None
-        result = self.backup.update(joints, imu, contacts)
+        result = self.backup.update(*sensors)
         if result is not None:
             self._backup_sample = (stamp_ns, result[0].velocity_world)
         elif self._backup_sample is None or (stamp_ns - self._backup_sample[0]) * 1e-9 > BACKUP_HOLD:
@@ -248,13 +252,10 @@ class ConvexMpcNode(Node):
     def _estimate_and_control(self, stamp_ns: int) -> None:
         """Embedded estimator: once this step's joints, IMU and contacts are all in, update the filter,
         publish /odom and control; a refused sample leaves the step to the safe-stance path."""
-        if not self._is_new_step(stamp_ns) or stamp_ns <= self._done_ns:
+        sensors = self._step_sensors(stamp_ns)
+        if sensors is None or not self._is_new_step(stamp_ns):
             return
-        joints, imu, contacts = self._joints.get(stamp_ns), self._imu.get(stamp_ns), self._contacts.get(stamp_ns)
-        if joints is None or imu is None or contacts is None:
-            return
-        self._done_ns = stamp_ns
-        result = self.frontend.update(joints, imu, contacts)
+        result = self.frontend.update(*sensors)
         if result is None:
             self.get_logger().warning("embedded estimator refused a sensor step (skew, joint names or NaN/inf)",
                                       throttle_duration_sec=1.0)
@@ -271,9 +272,10 @@ class ConvexMpcNode(Node):
                  backup_velocity: np.ndarray | None = None) -> None:
         """One control step for the sensors stamped ``stamp_ns``; no velocity: the backup estimate's
         controlled stop if there is one, else the safe-stance path."""
-        joints, imu, contacts = self._joints.get(stamp_ns), self._imu.get(stamp_ns), self._contacts.get(stamp_ns)
-        if joints is None or imu is None or contacts is None:
+        sensors = self._step_sensors(stamp_ns)
+        if sensors is None:
             return  # this step's sensors are not all in (yet)
+        joints, imu, contacts = sensors
         self._controlled_ns = stamp_ns  # one command per step, whatever path and however often called
         t0 = time.perf_counter()
         o, w = imu.orientation, imu.angular_velocity

@@ -191,8 +191,7 @@ class ControllerSupervisor:
                 self._stopped_since = now
             if self._stopped_since is None or now - self._stopped_since < STOP_SETTLE_TIME:
                 self.stopping_steps += 1
-                self.controller.set_gait(self._current_gait(now, velocity_command))
-                return StepResult(self.controller.step(obs, velocity_command), "stopping", velocity_command)
+                return self._walk(now, obs, velocity_command, "stopping")
         if stale:
             self.safe_stand_steps += 1
             self._walking = False
@@ -204,8 +203,12 @@ class ControllerSupervisor:
         if not self._walking:
             self.controller.reset()
             self._walking = True
-        self.controller.set_gait(self._current_gait(now, velocity_command))
-        return StepResult(self.controller.step(obs, velocity_command), "walk", velocity_command)
+        return self._walk(now, obs, velocity_command, "walk")
+
+    def _walk(self, now: float, obs: Observation, command: VelocityCommand, state: str) -> StepResult:
+        """One step of the locomotion controller on the current gait."""
+        self.controller.set_gait(self._current_gait(now, command))
+        return StepResult(self.controller.step(obs, command), state, command)
 
     def _stood_up(self, obs: Observation) -> bool:
         """Walking starts only from a real stance: joints near the nominal pose, body level."""
