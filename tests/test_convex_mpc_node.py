@@ -85,6 +85,21 @@ def test_sensors_in_any_order_trigger_a_stale_step_once(node, readings):
 
 
 @pytest.mark.ros
+def test_a_step_offered_again_gets_the_same_command_without_a_second_control_step(node, readings):
+    # A lockstep bridge offers step k again while its command has not arrived (lost before the DDS
+    # match): without an answer both would wait for good.
+    for k in range(3):
+        sensors(node, readings, k)
+        odom(node, k)
+    sent = []
+    node.pub_command.publish = sent.append
+    steps = node._steps
+    sensors(node, readings, 2)
+    assert [cv.ns_from_stamp(m.header.stamp) for m in sent] == [2 * STEP_NS] and node._steps == steps
+    assert sent[0] is node._last_command
+
+
+@pytest.mark.ros
 def test_sim_reset_starts_the_step_count_over(node, readings):
     for k in range(100, 110):
         sensors(node, readings, k)

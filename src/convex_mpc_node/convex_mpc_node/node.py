@@ -100,6 +100,7 @@ class ConvexMpcNode(Node):
         self._on_backup = False
         self._backup_sample: tuple[int, np.ndarray] | None = None  # (stamp, velocity) of its last estimate
         self._controlled_ns = -1  # the last step a command was sent for
+        self._last_command: MotorCommand | None = None  # ... and that command
 
         self.pub_command = self.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
         self.pub_state = self.create_publisher(GaitState, "/gait/state", CONTROL_QOS)
@@ -189,6 +190,12 @@ class ConvexMpcNode(Node):
         self._store(self._joints, msg)
         self._last_sensor_wall = time.monotonic()
         stamp_ns = ns_from_stamp(msg.header.stamp)
+        if stamp_ns == self._controlled_ns and self._last_command is not None:
+            # The step again: a lockstep bridge offers it again while no command reached it (the
+            # first one can be lost before DDS has matched the bridge), or a duplicate. Answer with
+            # the command already computed: the controller must not step twice.
+            self.pub_command.publish(self._last_command)
+            return
         if self.frontend is not None:
             self._estimate_and_control(stamp_ns)
         else:
@@ -285,7 +292,8 @@ class ConvexMpcNode(Node):
                           np.asarray(contacts.contact, dtype=bool), velocity)
         result = self.supervisor.step(stamp_ns * 1e-9, obs, velocity_fresh=velocity_world is not None,
                                       backup_velocity=velocity_world is None and backup_velocity is not None)
-        self.pub_command.publish(motor_command_msg(result.command, joints.header.stamp))
+        self._last_command = motor_command_msg(result.command, joints.header.stamp)
+        self.pub_command.publish(self._last_command)
         elapsed = time.perf_counter() - t0
         self._steps += 1
         self._state = result.state
