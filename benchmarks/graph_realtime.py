@@ -8,7 +8,8 @@ Starts sim_bridge (realtime), state_estimator, convex_mpc and gait_policy as pro
   before (the robot then gets the previous command again);
 - sensor-to-command latency: wall time from the bridge publishing step k's sensors to it receiving
   the command stamped k; the median of the per-second medians, and the worst per-second p99;
-- the bridge's achieved step rate, and whether the robot stayed up (lowest base height).
+- the bridge's achieved step rate, and whether the robot stayed up (lowest base height);
+- each node's CPU use over the window, in cores (from /proc: where the 2 cores go).
 Goal of issue 6: 500 Hz held with under 1% missed deadlines for 60 s. Prints a table, then JSON.
 
 Usage: source scripts/env.sh && python benchmarks/graph_realtime.py [--seconds 60]
@@ -62,6 +63,7 @@ def main() -> None:
             rclpy.spin_once(node, timeout_sec=0.05)
         first = len(reports)
         start = time.monotonic()
+        cpu_start = {name: _cpu_seconds(proc.pid) for name, proc in graph.procs.items()}
         last_cmd = 0.0
         while time.monotonic() - start < args.seconds:
             rclpy.spin_once(node, timeout_sec=0.05)
@@ -71,6 +73,8 @@ def main() -> None:
                 cmd_pub.publish(msg)
                 last_cmd = time.monotonic()
         window_reports = reports[first:]
+        cpu = {name: (_cpu_seconds(proc.pid) - cpu_start[name]) / (time.monotonic() - start)
+               for name, proc in graph.procs.items()}
         alive = graph.alive()
     finally:
         node.destroy_node()
@@ -96,6 +100,7 @@ def main() -> None:
         ("sensor-to-command latency p99 (worst 1 s)", f"{max(p99s) * 1e3:.2f} ms" if p99s else "n/a"),
         ("lowest base height", f"{min(heights):.3f} m" if heights else "n/a"),
         ("all nodes alive at the end", str(all(alive.values()))),
+        *((f"CPU of {name}", f"{share:.2f} cores") for name, share in cpu.items()),
     ]
     width = max(len(r[0]) for r in rows)
     for name, value in rows:
@@ -106,10 +111,20 @@ def main() -> None:
         "sensor_to_command_latency_median_s": float(np.median(medians)) if medians else None,
         "sensor_to_command_latency_p99_s": max(p99s) if p99s else None,
         "lowest_base_height_m": min(heights) if heights else None,
+        **{f"cpu_{name}_cores": share for name, share in cpu.items()},
     }))
     if not all(alive.values()):
         print(f"nodes died: {[k for k, v in alive.items() if not v]} (logs in {graph.log_dir})", file=sys.stderr)
         sys.exit(1)
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process ``pid`` [s] (0 once it is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 if __name__ == "__main__":

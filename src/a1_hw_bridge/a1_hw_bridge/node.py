@@ -42,8 +42,7 @@ class HardwareBridgeNode(Node):
         self.bridge = HardwareBridge(
             config, publish=self._publish, clock_ns=lambda: self.get_clock().now().nanoseconds,
             publish_clock=self._publish_clock if self.pub_clock is not None else None, on_failure=self._on_failure)
-        self.hot_subscriptions = [  # 500 Hz: dispatched by run_node's HotPathExecutor
-            self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS)]
+        self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS)
         if config.swing_recalibration:
             self.create_subscription(GaitState, "/gait/state", self._on_gait_state, CONTROL_QOS)
         self.add_on_set_parameters_callback(refuse_runtime_changes)

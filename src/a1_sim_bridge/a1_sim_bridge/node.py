@@ -72,8 +72,7 @@ class SimBridgeNode(Node):
         self.pub_clock = self.create_publisher(Clock, "/clock", CONTROL_QOS)
         self.pub_truth = self.create_publisher(Odometry, "/sim/ground_truth/odom", CONTROL_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.hot_subscriptions = [  # 500 Hz: dispatched by run_node's HotPathExecutor
-            self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS)]
+        self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.add_on_set_parameters_callback(self._on_set_parameters)

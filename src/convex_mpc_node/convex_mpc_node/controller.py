@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,6 +51,10 @@ class ControllerConfig:
     # never across a change of the measured contact set, the last forces are reused. Larger values
     # trade force-plan freshness for CPU, for realtime graphs on small computers.
     mpc_period_steps: int = 1
+    # Solve the MPC in a worker thread (OSQP releases the GIL while it solves): the control step
+    # never waits for a solve and uses the newest finished one, a few ms old. For realtime graphs
+    # on small computers; off in lockstep and training, where results must not depend on timing.
+    mpc_async: bool = False
     # Joint positions are predicted this far ahead (q + dq * t) before use [s]: the command acts
     # on a later state than the sensors saw (transport, compute, actuation). Measured in the
     # fault scenarios: without it 20 ms of joint-state latency makes the robot fall; 0.01 s
@@ -69,6 +74,8 @@ class ControllerConfig:
         require_range("max_position_error", self.max_position_error, 0.0, 1.0)
         require_range("max_yaw_error", self.max_yaw_error, 0.0, math.pi)
         require_integer("mpc_period_steps", self.mpc_period_steps, 1, 25)
+        if not isinstance(self.mpc_async, bool):
+            raise ConfigError(f"mpc_async must be true or false, got {self.mpc_async!r}")
         require_range("latency_compensation", self.latency_compensation, 0.0, 0.05)
         return self
 
@@ -163,9 +170,14 @@ class LocomotionController:
         neutral[:, 1] += sides * self.robot.hip_link_length  # foot under the hip, zero abduction
         self._neutral_xy = neutral[:, :2]
         self.mpc_fallbacks = 0
+        self._worker = ThreadPoolExecutor(1, thread_name_prefix="mpc") if self.config.mpc_async else None
+        self._pending: Future[MpcSolution] | None = None  # the solve running in the worker
         self.reset()
 
     def reset(self) -> None:
+        if self._pending is not None:
+            self._pending.result()  # never two solves on one OSQP problem at once
+            self._pending = None
         self.gait.reset()
         self.last_solution: MpcSolution | None = None
         self.solved_this_step = False  # False: the last step reused the previous MPC forces
@@ -217,19 +229,24 @@ class LocomotionController:
 
         mpc_cfg = cfg.mpc
         plan = self.gait.contact_schedule(mpc_cfg.horizon, mpc_cfg.step, leg_states=states)
-        self.solved_this_step = (self.last_solution is None or self._steps_since_solve + 1 >= cfg.mpc_period_steps
-                                 or not np.array_equal(plan[0], self._solved_contacts))
-        if self.solved_this_step:
-            solution = self.mpc.solve(
-                MpcState(roll, pitch, height, w_yaw, v_yaw, feet_yaw),
-                MpcCommand(v_cmd, command.yaw_rate, cfg.body_height, self._position_error, yaw_error), plan)
-            self.last_solution = solution
-            self.mpc_fallbacks += solution.fallback
+        self.solved_this_step = False
+        if self._pending is not None and self._pending.done():
+            self._adopt(self._pending.result())
+            self._pending = None
+        due = (self.last_solution is None or self._steps_since_solve + 1 >= cfg.mpc_period_steps
+               or not np.array_equal(plan[0], self._solved_contacts))
+        if due and self._pending is None:
+            problem = (MpcState(roll, pitch, height, w_yaw, v_yaw, feet_yaw),
+                       MpcCommand(v_cmd, command.yaw_rate, cfg.body_height, self._position_error, yaw_error), plan)
+            if self._worker is not None and self.last_solution is not None:
+                self._pending = self._worker.submit(self.mpc.solve, *problem)
+            else:
+                self._adopt(self.mpc.solve(*problem))
             self._steps_since_solve = 0
             self._solved_contacts = plan[0].copy()
         else:
-            solution = self.last_solution
             self._steps_since_solve += 1
+        solution = self.last_solution
 
         out = JointCommand()
         jac = leg_jacobians(robot, q)
@@ -264,6 +281,11 @@ class LocomotionController:
             self.mpc_fallbacks += 1
             return JointCommand.hold(robot, q_measured if np.all(np.isfinite(q_measured)) else None)
         return out
+
+    def _adopt(self, solution: MpcSolution) -> None:
+        self.last_solution = solution
+        self.mpc_fallbacks += solution.fallback
+        self.solved_this_step = True
 
     def _swing_target(self, leg: int, v_base: np.ndarray, yaw_rate: float, command: VelocityCommand,
                       t_stance: float, progress: float) -> np.ndarray:

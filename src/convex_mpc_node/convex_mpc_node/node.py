@@ -110,14 +110,12 @@ class ConvexMpcNode(Node):
         else:
             self.create_subscription(Twist, "/cmd_vel", self._on_cmd_vel, COMMAND_QOS)
         self.create_subscription(GaitParamsMsg, "/gait/params", self._on_gait_params, COMMAND_QOS)
-        # The 500 Hz inputs: dispatched by run_node's HotPathExecutor.
-        self.hot_subscriptions = [
-            self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS),
-            self.create_subscription(Imu, "/imu/data", lambda m: self._on_sensor(self._imu, m), CONTROL_QOS),
-            self.create_subscription(FootContacts, "/foot_contacts", lambda m: self._on_sensor(self._contacts, m),
-                                     CONTROL_QOS)]
+        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
+        self.create_subscription(Imu, "/imu/data", lambda m: self._on_sensor(self._imu, m), CONTROL_QOS)
+        self.create_subscription(FootContacts, "/foot_contacts", lambda m: self._on_sensor(self._contacts, m),
+                                 CONTROL_QOS)
         if self.frontend is None:
-            self.hot_subscriptions.append(self.create_subscription(Odometry, "/odom", self._on_odom, CONTROL_QOS))
+            self.create_subscription(Odometry, "/odom", self._on_odom, CONTROL_QOS)
         else:
             self.pub_odom = self.create_publisher(Odometry, "/odom", CONTROL_QOS)
         estop_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)

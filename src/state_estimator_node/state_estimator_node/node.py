@@ -112,11 +112,10 @@ class StateEstimatorNode(Node):
         self._published = 0
         self.pub_odom = self.create_publisher(Odometry, "/odom", CONTROL_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.hot_subscriptions = [  # the 500 Hz inputs: dispatched by run_node's HotPathExecutor
-            self.create_subscription(Imu, "/imu/data", lambda m: setattr(self, "_imu", m), CONTROL_QOS),
-            self.create_subscription(FootContacts, "/foot_contacts", lambda m: setattr(self, "_contacts", m),
-                                     CONTROL_QOS),
-            self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)]
+        self.create_subscription(Imu, "/imu/data", lambda m: setattr(self, "_imu", m), CONTROL_QOS)
+        self.create_subscription(FootContacts, "/foot_contacts", lambda m: setattr(self, "_contacts", m),
+                                 CONTROL_QOS)
+        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
         self.create_timer(1.0, self._publish_diagnostics)
 
     def _on_joints(self, msg: JointState) -> None:
