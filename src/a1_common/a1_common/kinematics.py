@@ -18,27 +18,26 @@ import numpy as np
 
 from a1_common.robot import NUM_LEGS, A1Constants
 
+_LEG_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0])  # A1Constants.leg_sign of FR, FL, RR, RL
+
 
 def _leg_params(robot: A1Constants) -> tuple[np.ndarray, float, float]:
-    side = np.array([robot.leg_sign(leg) * robot.hip_link_length for leg in range(NUM_LEGS)])
-    return side, robot.thigh_length, robot.calf_length
+    return _LEG_SIGNS * robot.hip_link_length, robot.thigh_length, robot.calf_length
 
 
 def foot_positions(robot: A1Constants, q: np.ndarray) -> np.ndarray:
     """Foot (toe centre) positions [m] in the base frame, shape (4, 3), for joint angles q (12,)."""
-    side, l1, l2 = _leg_params(robot)
-    a, h, k = np.asarray(q, dtype=float).reshape(NUM_LEGS, 3).T
-    length = np.sqrt(l1**2 + l2**2 + 2 * l1 * l2 * np.cos(k))
-    psi = h + 0.5 * k
-    x = -length * np.sin(psi)
-    z0 = -length * np.cos(psi)
-    y = np.cos(a) * side - np.sin(a) * z0
-    z = np.sin(a) * side + np.cos(a) * z0
-    return np.stack([x, y, z], axis=1) + robot.hip_offsets
+    return leg_kinematics(robot, q)[0]
 
 
 def leg_jacobians(robot: A1Constants, q: np.ndarray) -> np.ndarray:
     """d(foot position)/d(leg joint angles) in the base frame, shape (4, 3, 3) [m/rad]."""
+    return leg_kinematics(robot, q)[1]
+
+
+def leg_kinematics(robot: A1Constants, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Foot positions (4, 3) [m] and leg Jacobians (4, 3, 3) [m/rad] in the base frame together:
+    the controller and the estimator need both every 2 ms, and they share the trigonometry."""
     side, l1, l2 = _leg_params(robot)
     a, h, k = np.asarray(q, dtype=float).reshape(NUM_LEGS, 3).T
     length = np.sqrt(l1**2 + l2**2 + 2 * l1 * l2 * np.cos(k))
@@ -46,6 +45,11 @@ def leg_jacobians(robot: A1Constants, q: np.ndarray) -> np.ndarray:
     psi = h + 0.5 * k
     sp, cp, sa, ca = np.sin(psi), np.cos(psi), np.sin(a), np.cos(a)
     z0 = -length * cp
+    feet = np.empty((NUM_LEGS, 3))
+    feet[:, 0] = -length * sp
+    feet[:, 1] = ca * side - sa * z0
+    feet[:, 2] = sa * side + ca * z0
+    feet += robot.hip_offsets
     jac = np.zeros((NUM_LEGS, 3, 3))
     # Column 0: abduction rotates the (y, z) part of v about x.
     jac[:, 1, 0] = -sa * side - ca * z0
@@ -58,7 +62,7 @@ def leg_jacobians(robot: A1Constants, q: np.ndarray) -> np.ndarray:
         jac[:, 0, col] = dx
         jac[:, 1, col] = -sa * dz
         jac[:, 2, col] = ca * dz
-    return jac
+    return feet, jac
 
 
 def inverse_kinematics(robot: A1Constants, feet: np.ndarray) -> np.ndarray:

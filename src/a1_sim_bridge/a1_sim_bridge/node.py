@@ -233,18 +233,11 @@ class SimBridgeNode(Node):
         self._publish(readings)
 
     def _publish(self, readings) -> None:
-        """This step's messages. /clock and the ground truth only when someone listens: at 500 Hz
-        every message costs CPU a realtime graph on a small computer does not have."""
+        """This step's messages: the controller's sensors first (the time from the step to the last of
+        them counts against a realtime controller's 2 ms), then /clock and the ground truth, only
+        when someone listens: at 500 Hz every message costs CPU a small computer does not have."""
         stamp_ns = self.sim.steps * self.dt_ns
         stamp = cv.stamp_from_ns(stamp_ns)
-        if self.pub_clock.get_subscription_count():
-            self.pub_clock.publish(Clock(clock=stamp))
-        if self.publish_ground_truth:
-            truth = self.sim.ground_truth()
-            with self._lock:
-                self._lowest_base_height = min(self._lowest_base_height, float(truth.base_position[2]))
-            if self.pub_truth.get_subscription_count():
-                self.pub_truth.publish(cv.ground_truth_msg(truth, stamp))
         self.pub_imu.publish(cv.imu_msg(readings, stamp))
         self.pub_contacts.publish(cv.foot_contacts_msg(readings, stamp))
         # Joint states last: in lockstep a controller may take it as "this step's sensors are out".
@@ -255,6 +248,14 @@ class SimBridgeNode(Node):
                 self._published_at.popitem(last=False)
         self.pub_joints.publish(joints)
         self._published += 1
+        if self.pub_clock.get_subscription_count():
+            self.pub_clock.publish(Clock(clock=stamp))
+        if self.publish_ground_truth:
+            truth = self.sim.ground_truth()
+            with self._lock:
+                self._lowest_base_height = min(self._lowest_base_height, float(truth.base_position[2]))
+            if self.pub_truth.get_subscription_count():
+                self.pub_truth.publish(cv.ground_truth_msg(truth, stamp))
 
     def _publish_diagnostics(self) -> None:
         with self._lock:

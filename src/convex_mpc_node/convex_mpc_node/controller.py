@@ -26,7 +26,7 @@ from a1_common.config import (
     require_numbers,
     require_range,
 )
-from a1_common.kinematics import foot_positions, inverse_kinematics, leg_jacobians, quat_to_matrix
+from a1_common.kinematics import foot_positions, inverse_kinematics, leg_kinematics, quat_to_matrix
 from a1_common.robot import NUM_LEGS, A1Constants, a1
 
 from convex_mpc_node.gait import GaitParams, LegState, PhaseIntegrator
@@ -205,7 +205,7 @@ class LocomotionController:
         roll = np.arctan2(rot_rp[2, 1], rot_rp[2, 2])
         pitch = -np.arcsin(np.clip(rot_rp[2, 0], -1.0, 1.0))
 
-        feet_base = foot_positions(robot, q)
+        feet_base, jac = leg_kinematics(robot, q)
         feet_yaw = (rot_rp @ (feet_base - np.asarray(cfg.com_offset)).T).T
         contact = np.asarray(obs.foot_contact, dtype=bool)
         states = self.gait.leg_states(contact)
@@ -249,7 +249,6 @@ class LocomotionController:
         solution = self.last_solution
 
         out = JointCommand()
-        jac = leg_jacobians(robot, q)
         # Stance: the foot pushes on the ground with -f; torques = J^T (that force in the base frame).
         foot_force_base = (rot_rp.T @ (-solution.forces).T).T
         for leg in np.flatnonzero(stance):

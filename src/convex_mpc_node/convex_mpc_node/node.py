@@ -230,9 +230,9 @@ class ConvexMpcNode(Node):
             self.backup.estimator.reset(self._odom_velocity)
             self._on_backup = True
             self._backup_sample = None
-        result = self.backup.update(*sensors)
-        if result is not None:
-            self._backup_sample = (stamp_ns, result[0].velocity_world)
+        estimate = self.backup.update(*sensors)
+        if estimate is not None:
+            self._backup_sample = (stamp_ns, estimate.velocity_world)
         elif self._backup_sample is None or (stamp_ns - self._backup_sample[0]) * 1e-9 > BACKUP_HOLD:
             return None  # one refused sample must not end the stop: the last estimate holds briefly
         return self._backup_sample[1]
@@ -262,17 +262,16 @@ class ConvexMpcNode(Node):
         sensors = self._step_sensors(stamp_ns)
         if sensors is None or not self._is_new_step(stamp_ns):
             return
-        result = self.frontend.update(*sensors)
-        if result is None:
+        estimate = self.frontend.update(*sensors)
+        if estimate is None:
             self.get_logger().warning("embedded estimator refused a sensor step (skew, joint names or NaN/inf)",
                                       throttle_duration_sec=1.0)
             self._control(stamp_ns, None)
             return
-        estimate, odom = result
         self._odom_ns = stamp_ns
         self._control(stamp_ns, estimate.velocity_world)
         if self._steps % self.odom_every == 0:  # after the motor command: off the control path
-            self.pub_odom.publish(odom)
+            self.pub_odom.publish(self.frontend.odometry(sensors[0], sensors[1], estimate))
 
     # --- the control step ----------------------------------------------------------------------
     def _control(self, stamp_ns: int, velocity_world: np.ndarray | None,

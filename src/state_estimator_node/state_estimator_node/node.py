@@ -41,9 +41,10 @@ class OdometryFrontend:
         self.skewed = 0
         self.wrong_names = 0
 
-    def update(self, joints: JointState, imu: Imu, contacts: FootContacts) -> tuple[Estimate, Odometry] | None:
-        """The estimate and /odom for this step, or None when the step is refused (and counted):
-        IMU or contacts more than MAX_SENSOR_SKEW from the joint state, wrong joint names, NaN/inf."""
+    def update(self, joints: JointState, imu: Imu, contacts: FootContacts) -> Estimate | None:
+        """The estimate for this step (``odometry`` makes its /odom), or None when the step is refused
+        (and counted): IMU or contacts more than MAX_SENSOR_SKEW from the joint state, wrong joint
+        names, NaN/inf."""
         now_ns = ns_from_stamp(joints.header.stamp)
         if (abs(now_ns - ns_from_stamp(imu.header.stamp)) * 1e-9 > MAX_SENSOR_SKEW
                 or abs(now_ns - ns_from_stamp(contacts.header.stamp)) * 1e-9 > MAX_SENSOR_SKEW):
@@ -67,9 +68,11 @@ class OdometryFrontend:
         if self.last_ns is not None and now_ns > self.last_ns:
             self.position += est.velocity_world[:2] * (now_ns - self.last_ns) * 1e-9
         self.last_ns = now_ns
-        return est, self.odometry(joints, est, w)
+        return est
 
-    def odometry(self, joints: JointState, est: Estimate, gyro) -> Odometry:
+    def odometry(self, joints: JointState, imu: Imu, est: Estimate) -> Odometry:
+        """/odom for the step of ``joints`` and ``imu`` with its estimate ``est``."""
+        gyro = imu.angular_velocity
         odom = Odometry()
         odom.header.stamp = joints.header.stamp
         odom.header.frame_id = ODOM_FRAME
@@ -123,8 +126,8 @@ class StateEstimatorNode(Node):
             return  # not all sensors seen yet
         front = self.frontend
         names_before, rejected_before = front.wrong_names, self.estimator.rejected_samples
-        result = front.update(msg, self._imu, self._contacts)
-        if result is None:
+        est = front.update(msg, self._imu, self._contacts)
+        if est is None:
             if front.wrong_names > names_before:
                 self.get_logger().warning("rejected /joint_states: joint names are not the A1's 12 joints "
                                           "in motor order", throttle_duration_sec=1.0)
@@ -133,7 +136,7 @@ class StateEstimatorNode(Node):
                                           throttle_duration_sec=1.0)
             return
         self._last_wall = time.monotonic()
-        self.pub_odom.publish(result[1])
+        self.pub_odom.publish(front.odometry(msg, self._imu, est))
         self._published += 1
 
     def _publish_diagnostics(self) -> None:
