@@ -48,6 +48,7 @@ class Graph:
         self.commands: dict[str, list[str]] = {}
         self.faults = faults or {}
         self.sim_time = "true"
+        self.realtime = False
         self.publishers = {topic: publisher for topic, (publisher, _) in TOPICS.items()}
         unknown = set(self.faults) - set(TOPICS)
         assert not unknown, f"no fault relay for {unknown}; topics: {sorted(TOPICS)}"
@@ -72,7 +73,9 @@ class Graph:
         """Sim bridge, estimator, controller, gait policy (and any fault relays); ``controller_params``
         and ``policy_params`` are extra ``name:=value`` (with ``embedded_estimator:=true`` no
         state_estimator process starts, and the controller publishes /odom)."""
-        embedded = "embedded_estimator:=true" in controller_params
+        # Realtime: the controller with config/convex_mpc_realtime.yaml, which embeds the estimator.
+        self.realtime = clock == "realtime"
+        embedded = self.realtime or "embedded_estimator:=true" in controller_params
         # Sim time in lockstep only: in realtime the sim follows the wall clock, and 500 Hz /clock
         # callbacks in every node would cost a good part of a core on a small computer.
         self.sim_time = "true" if clock == "lockstep" else "false"
@@ -97,9 +100,11 @@ class Graph:
                    str(CONFIG / "gait_policy.yaml"), "-p", f"use_sim_time:={self.sim_time}", *extra)
 
     def start_controller(self, *params: str) -> None:
+        files = [CONFIG / "convex_mpc.yaml", *([CONFIG / "convex_mpc_realtime.yaml"] if self.realtime else [])]
         extra = [a for p in params for a in ("-p", p)]
-        self.start("convex_mpc", "convex_mpc_node", "convex_mpc", "--ros-args", "--params-file",
-                   str(CONFIG / "convex_mpc.yaml"), "-p", f"use_sim_time:={self.sim_time}", *extra)
+        self.start("convex_mpc", "convex_mpc_node", "convex_mpc", "--ros-args",
+                   *[a for f in files for a in ("--params-file", str(f))], "-p", f"use_sim_time:={self.sim_time}",
+                   *extra)
 
     def kill(self, name: str) -> None:
         proc = self.procs.pop(name)

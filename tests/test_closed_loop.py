@@ -12,12 +12,19 @@ import dataclasses
 
 import numpy as np
 import pytest
-from a1_common.config import ConfigError
-from convex_mpc_node.controller import VelocityCommand, load_controller_config, swing_curve
+from a1_common.config import ConfigError, config_dir, load_node_parameters
+from convex_mpc_node.controller import (
+    NODE_ONLY_PARAMETERS,
+    VelocityCommand,
+    controller_config_from_parameters,
+    load_controller_config,
+    swing_curve,
+)
 from convex_mpc_node.gait import gait_for_speed, load_hand_tuned_gaits
 from gait_policy_node.rollout import ClosedLoop, ramp_profile, run_closed_loop
 
 GAITS = load_hand_tuned_gaits()
+CONFIG = config_dir()
 
 
 def fixed(name: str):
@@ -102,6 +109,35 @@ def test_mpc_every_third_step_still_trots_and_resolves_on_contact_changes():
     assert np.mean(speeds[-1500:]) == pytest.approx(1.5, rel=0.10)
     # A third of the steps, plus a re-solve at each of the 4 Hz trot's 8 contact changes per second.
     assert 1000 <= solves <= 1000 + 8 * 6 + 10
+
+
+@pytest.mark.slow
+def test_realtime_controller_settings_walk_with_the_mpc_in_a_worker_thread():
+    """config/convex_mpc_realtime.yaml over convex_mpc.yaml (what realtime graphs run): the MPC solves
+    asynchronously every 5 steps, the step uses the newest finished solve; it still tracks 1.5 m/s."""
+    params = {**load_node_parameters(CONFIG / "convex_mpc.yaml", "convex_mpc"),
+              **load_node_parameters(CONFIG / "convex_mpc_realtime.yaml", "convex_mpc")}
+    config = controller_config_from_parameters({k: v for k, v in params.items() if k not in NODE_ONLY_PARAMETERS})
+    assert config.mpc_async and config.mpc_period_steps == 5
+    loop = ClosedLoop(GAITS["rapid_trot"], controller_config=config)
+    solves, speeds = 0, []
+    try:
+        for k in range(3000):  # 6 s
+            loop.step(VelocityCommand(vx=min(1.5, 0.002 * k)))
+            solves += loop.controller.solved_this_step
+            speeds.append(loop.forward_velocity())
+            assert not loop.fallen, f"fell at {loop.sim.time:.2f} s"
+    finally:
+        loop.sim.close()
+    assert np.mean(speeds[-1500:]) == pytest.approx(1.5, rel=0.10)
+    # Solves finish in a worker: at most one per 5 steps plus the contact changes, and not none.
+    assert 200 <= solves <= 600 + 8 * 6 + 10
+    assert loop.controller.mpc_fallbacks == 0
+
+
+def test_mpc_async_must_be_a_bool():
+    with pytest.raises(ConfigError, match=r"mpc_async must be true or false, got 'yes'"):
+        dataclasses.replace(load_controller_config(), mpc_async="yes").validated()
 
 
 def test_mpc_period_steps_is_range_checked():

@@ -9,7 +9,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
-        ("share/" + PACKAGE + "/config", ["../../config/convex_mpc.yaml", "../../config/gaits.yaml"]),
+        ("share/" + PACKAGE + "/config", ["../../config/convex_mpc.yaml", "../../config/convex_mpc_realtime.yaml",
+                                               "../../config/gaits.yaml"]),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -198,12 +198,12 @@ class LocomotionController:
         q_measured = np.asarray(obs.joint_position, dtype=float)
         q = q_measured + cfg.latency_compensation * np.asarray(obs.joint_velocity, dtype=float)
         rot = quat_to_matrix(np.asarray(obs.orientation, dtype=float))  # base -> world
-        yaw = np.arctan2(rot[1, 0], rot[0, 0])
-        cy, sy = np.cos(yaw), np.sin(yaw)
+        yaw = math.atan2(rot[1, 0], rot[0, 0])
+        cy, sy = math.cos(yaw), math.sin(yaw)
         rot_yaw = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
         rot_rp = rot_yaw.T @ rot  # base -> yaw-aligned frame
-        roll = np.arctan2(rot_rp[2, 1], rot_rp[2, 2])
-        pitch = -np.arcsin(np.clip(rot_rp[2, 0], -1.0, 1.0))
+        roll = math.atan2(rot_rp[2, 1], rot_rp[2, 2])
+        pitch = -math.asin(min(max(rot_rp[2, 0], -1.0), 1.0))
 
         feet_base, jac = leg_kinematics(robot, q)
         feet_yaw = (rot_rp @ (feet_base - np.asarray(cfg.com_offset)).T).T
@@ -212,8 +212,9 @@ class LocomotionController:
         stance = states != LegState.SWING
         touching = stance & contact
         # COM height above the ground under the feet in contact (toe centre + toe radius).
-        ground = -feet_yaw[touching, 2] + robot.foot_radius
-        height = float(np.mean(ground)) if touching.any() else cfg.body_height
+        n_touching = int(np.count_nonzero(touching))
+        height = (robot.foot_radius - float(feet_yaw[touching, 2].sum()) / n_touching if n_touching
+                  else cfg.body_height)
         v_yaw = rot_yaw.T @ np.asarray(obs.base_velocity, dtype=float)
         w_yaw = rot_rp @ np.asarray(obs.angular_velocity, dtype=float)
 
@@ -276,7 +277,7 @@ class LocomotionController:
                 out.kd[sl] = robot.joint_kd[sl]
         out.torque = np.clip(out.torque, -robot.motor_torque_limit, robot.motor_torque_limit)
         self.gait.step(cfg.control_period)
-        if not all(np.all(np.isfinite(a)) for a in (out.position, out.torque)):
+        if not np.isfinite(out.position.sum() + out.torque.sum()):  # a NaN/inf anywhere spoils the sum
             self.mpc_fallbacks += 1
             return JointCommand.hold(robot, q_measured if np.all(np.isfinite(q_measured)) else None)
         return out

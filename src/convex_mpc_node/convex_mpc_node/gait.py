@@ -96,8 +96,8 @@ class PhaseIntegrator:
     """Advances the leg phases at the control rate and turns them into a contact schedule."""
 
     def __init__(self, params: GaitParams) -> None:
-        self.params = params.validated()
         self.phase_fr = 0.0  # phi_1 [rad], in [0, 2pi)
+        self.set_params(params)
 
     def reset(self) -> None:
         """All legs restart at the beginning of their cycle (FR lifts off first)."""
@@ -105,7 +105,10 @@ class PhaseIntegrator:
 
     def set_params(self, params: GaitParams) -> None:
         """New gait parameters; phi_1 continues from where it is, without a jump."""
+        if params is getattr(self, "params", None):
+            return  # set again every 2 ms by the supervisor: validated already
         self.params = params.validated()
+        self._offsets = np.asarray(self.params.phase_offsets, dtype=float)
 
     def step(self, dt: float) -> None:
         """Advance by ``dt`` seconds: phi_1 <- phi_1 + 2 pi f dt (mod 2 pi)."""
@@ -114,7 +117,7 @@ class PhaseIntegrator:
     @property
     def phases(self) -> np.ndarray:
         """phi_i = phi_1 + theta_i of each leg [rad], in [0, 2pi)."""
-        return (self.phase_fr + np.asarray(self.params.phase_offsets)) % TWO_PI
+        return (self.phase_fr + self._offsets) % TWO_PI
 
     @property
     def swing_threshold(self) -> float:
@@ -144,9 +147,9 @@ class PhaseIntegrator:
         desired = self.desired_contact
         progress = self.normalised_phase()
         contact = np.asarray(foot_contact, dtype=bool)
-        states = np.where(desired, LegState.STANCE, LegState.SWING)
-        states[desired & ~contact & (progress > LOST_CONTACT_STANCE_FRACTION)] = LegState.LOST_CONTACT
-        states[~desired & contact & (progress > EARLY_CONTACT_SWING_FRACTION)] = LegState.EARLY_CONTACT
+        states = np.where(desired, int(LegState.STANCE), int(LegState.SWING))
+        states[desired & ~contact & (progress > LOST_CONTACT_STANCE_FRACTION)] = int(LegState.LOST_CONTACT)
+        states[~desired & contact & (progress > EARLY_CONTACT_SWING_FRACTION)] = int(LegState.EARLY_CONTACT)
         return states
 
     def contact_schedule(self, horizon: int, step: float, foot_contact: np.ndarray | None = None,

@@ -20,6 +20,7 @@ the state_estimator node is then not started.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 
@@ -303,7 +304,7 @@ class ConvexMpcNode(Node):
         effort, joint_velocity = np.asarray(joints.effort, dtype=float), np.asarray(joints.velocity, dtype=float)
         if effort.shape == joint_velocity.shape:  # efforts are optional in sensor_msgs/JointState
             self._powers.append(float(motor_power(effort, joint_velocity).sum()))
-        self._speeds.append(float(np.linalg.norm(velocity[:2])))
+        self._speeds.append(math.hypot(velocity[0], velocity[1]))
         if self.pub_state.get_subscription_count():  # monitors and plots only: skipped when nobody listens
             self.pub_state.publish(self._gait_state(joints.header.stamp, contacts))
 
