@@ -1,8 +1,9 @@
 """Benchmark the whole node graph in realtime mode: control rate, missed deadlines, latency.
 
-Starts sim_bridge (realtime), state_estimator, convex_mpc and gait_policy as processes, commands
-1.0 m/s, and reads the sim bridge's own counts from /diagnostics for ``--seconds`` of wall time
-(this probe subscribes to nothing else, so it takes no CPU from the graph it measures):
+Starts sim_bridge (realtime), convex_mpc (with config/convex_mpc_realtime.yaml: the estimator
+embedded, the MPC asynchronous) and gait_policy as processes, commands 1.0 m/s, and reads the sim
+bridge's own counts from /diagnostics for ``--seconds`` of wall time (this probe subscribes to
+nothing else, so it takes no CPU from the graph it measures):
 - control rate: /motor_command messages the bridge accepted per second (goal 500 Hz);
 - missed deadlines: share of the bridge's 2 ms steps applied with no new command since the step
   before (the robot then gets the previous command again);

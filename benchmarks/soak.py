@@ -1,7 +1,8 @@
 """Soak: the whole node graph in realtime for minutes with a varying speed command.
 
-Starts sim_bridge (realtime, or ``--clock lockstep``), state_estimator, convex_mpc and gait_policy as processes (or with
-``--controller-param embedded_estimator:=true`` no estimator process) and, from a light probe that
+Starts sim_bridge (realtime, or ``--clock lockstep``), convex_mpc and gait_policy as processes (realtime: convex_mpc
+with config/convex_mpc_realtime.yaml, which embeds the estimator; lockstep: with a state_estimator process, or with
+``--controller-param embedded_estimator:=true`` without) and, from a light probe that
 listens to /diagnostics only, reports every ``--interval`` seconds of wall time:
 - missed deadlines: the sim bridge's steps applied with no new /motor_command since the step
   before (``uncommanded_steps``), as a share of its steps in the interval;
