@@ -37,6 +37,16 @@ def _zeros() -> np.ndarray:
     return np.zeros(NUM_JOINTS)
 
 
+_MODE_VALUES = tuple(int(m) for m in MotorMode)
+# Bounds of position, velocity, kp, kd, torque, concatenated (JointCommand.validated's fast path).
+# Position and velocity only need to be finite: +-float max, which inf and NaN fail.
+_FINITE = np.finfo(float).max
+_LOWER = np.concatenate([np.full(2 * NUM_JOINTS, -_FINITE), np.zeros(2 * NUM_JOINTS),
+                         np.full(NUM_JOINTS, -MAX_FEEDFORWARD_TORQUE)])
+_UPPER = np.concatenate([np.full(2 * NUM_JOINTS, _FINITE), np.full(NUM_JOINTS, MAX_KP),
+                         np.full(NUM_JOINTS, MAX_KD), np.full(NUM_JOINTS, MAX_FEEDFORWARD_TORQUE)])
+
+
 @dataclass
 class JointCommand:
     """One command for all 12 joints. Arrays have shape (12,), units rad, rad/s, N m."""
@@ -60,6 +70,18 @@ class JointCommand:
 
     def validated(self) -> JointCommand:
         """Return a float64 copy, or raise CommandError naming the first bad field."""
+        fields = (self.position, self.velocity, self.kp, self.kd, self.torque)
+        if (isinstance(self.mode, int) and self.mode in _MODE_VALUES
+                and all(np.shape(a) == (NUM_JOINTS,) for a in fields)):
+            # Fast path, every 2 ms on the controller and the bridge: all checks in one comparison.
+            try:
+                values = np.concatenate(fields, dtype=float)
+            except (TypeError, ValueError):
+                values = None
+            if values is not None and np.all((values >= _LOWER) & (values <= _UPPER)):  # NaN fails too
+                n = NUM_JOINTS
+                return JointCommand(MotorMode(int(self.mode)), values[:n], values[n:2 * n], values[2 * n:3 * n],
+                                    values[3 * n:4 * n], values[4 * n:])
         try:
             mode = MotorMode(int(self.mode))
         except (ValueError, TypeError):
