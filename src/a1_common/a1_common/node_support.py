@@ -12,13 +12,16 @@ import inspect
 import sys
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.context import Context
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor, TimeoutException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.subscription import Subscription
 
 from a1_common.config import ConfigError
 
@@ -99,30 +102,55 @@ def guard_runtime_parameters(node, defaults: dict[str, Any],
 
 class DirectExecutor(SingleThreadedExecutor):
     """A SingleThreadedExecutor that takes messages straight out of its wait set and calls the
-    subscription callbacks (plain functions; a coroutine callback is left to rclpy); anything else
-    that is ready (timers, services, parameter requests, clients) goes through rclpy's own dispatch.
+    subscription callbacks (plain functions); everything else (timers, services, parameter
+    requests, clients, coroutine callbacks, tasks) goes through rclpy's own dispatch.
 
     Why: rclpy's dispatch rebuilds a wait set over every entity of the node and wraps each message
     in a Task: about 0.35 ms of CPU per message on the 2-core machine, measured, which at three
     sensor topics x 500 Hz is more than half a core. Taken directly a message costs about 0.1 ms.
+
+    The entities are gathered once and their handles held (as rclpy holds them during a wait, so
+    that a destroy from a callback or another thread waits until they are let go); rclpy wakes the
+    executor on every change, and the next wait gathers them anew.
     """
 
     def __init__(self, *, context: Context | None = None) -> None:
+        self._entities_stale = True  # before super(): it may wake us
         super().__init__(context=context)
-        self._entities_stale = True  # gather the nodes' entities again (rclpy wakes the executor on a change)
+        self._held = ExitStack()  # the handles of the gathered entities
         self._wait_sets: dict[bool, Any] = {}  # with / without the waitables
         self._next_waitables = 0.0  # monotonic time [s] the waitables are next waited on
 
+    def wake(self) -> None:
+        self._entities_stale = True  # an entity or node came or went (rclpy wakes us then), or work
+        super().wake()
+
+    def add_node(self, node) -> bool:
+        self._entities_stale = True
+        return super().add_node(node)
+
+    def remove_node(self, node) -> None:
+        self._entities_stale = True
+        super().remove_node(node)
+
     def spin(self) -> None:
-        while self._context.ok() and not self._is_shutdown:
-            self.spin_direct_once()
+        try:
+            while self._context.ok() and not self._is_shutdown:
+                self.spin_direct_once()
+        finally:
+            self._held.close()
 
     def spin_direct_once(self, timeout_sec: float | None = None) -> None:
         """Wait for any entity (up to ``timeout_sec``, None: no limit), then run what is ready.
 
         Waitables (the QoS event handlers every publisher and subscription has) are waited on every
         WAITABLES_PERIOD only: filling 20 of them into the wait set cost 60 us a wake-up, measured.
+        While rclpy has a task in progress (a coroutine callback, a future's callback), a whole
+        iteration is rclpy's: it runs tasks and respects callback groups.
         """
+        if self._tasks_pending():
+            SingleThreadedExecutor.spin_once(self, timeout_sec)
+            return
         self._refresh_entities()
         now = time.monotonic()
         with_waitables = now >= self._next_waitables
@@ -139,42 +167,55 @@ class DirectExecutor(SingleThreadedExecutor):
         if not self._context.ok():
             raise ExternalShutdownException()
         ready_subs = set(wait_set.get_ready_entities("subscription"))
-        left_to_rclpy = False
-        for sub in self._subs:
+        for sub, with_info in self._direct:
             if sub.handle.pointer in ready_subs:
-                if inspect.iscoroutinefunction(sub.callback):
-                    left_to_rclpy = True
-                    continue
                 taken = sub.handle.take_message(sub.msg_type, sub.raw)
                 if taken is not None:
-                    sub.callback(taken[0])
+                    sub.callback(*taken) if with_info else sub.callback(taken[0])
+                    if self._is_shutdown:  # the callback shut the executor down
+                        return
         ready_guards = wait_set.get_ready_entities("guard_condition")
-        self._entities_stale = self._guard.handle.pointer in ready_guards
         node_guards = [guard for guard in self._guards[2:] if guard.handle.pointer in ready_guards]
         for guard in node_guards:
             guard.trigger()  # this wait took the trigger: offer it again to rclpy's dispatch
-        if (left_to_rclpy or node_guards
+        if (node_guards or any(sub.handle.pointer in ready_subs for sub in self._left_to_rclpy)
                 or wait_set.get_ready_entities("timer") or wait_set.get_ready_entities("client")
-                or wait_set.get_ready_entities("service")
+                or wait_set.get_ready_entities("service") or self._tasks_pending()
                 or (with_waitables and any(waitable.is_ready(wait_set) for waitable in self._waitables))):
             self._dispatch_ready()
 
+    def _tasks_pending(self) -> bool:
+        """rclpy has a task not done (its list keeps finished ones until its next pass)."""
+        with self._tasks_lock:
+            return any(not task.done() for task, _, _ in self._tasks)
+
     def _refresh_entities(self) -> None:
-        """The nodes' entities, gathered again after rclpy woke the executor (an entity or a node
-        came or went: rclpy triggers the executor's guard condition then)."""
+        """Gather the nodes' entities and hold their handles, after a change (see wake)."""
         if not self._entities_stale:
             return
         self._entities_stale = False
-        nodes = self.get_nodes()
+        self._held.close()  # destroys requested meanwhile happen now
+        self._held = ExitStack()
+        self._held.enter_context(self._context.handle)
+        held = []
+        for entity in [self._guard, self._sigint_gc]:  # the executor's own first: wake-ups only
+            self._held.enter_context(entity.handle)
+            held.append(entity)
+        self._guards = held
         self._subs, self._timers, self._clients, self._services, self._waitables = [], [], [], [], []
-        self._guards = [self._guard, self._sigint_gc]  # the executor's own first: wake-ups only
-        for node in nodes:
-            self._subs += node.subscriptions
-            self._timers += node.timers
-            self._clients += node.clients
-            self._services += node.services
-            self._guards += node.guards
-            self._waitables += node.waitables
+        for node in self.get_nodes():
+            for target, entities in ((self._subs, node.subscriptions), (self._timers, node.timers),
+                                     (self._clients, node.clients), (self._services, node.services),
+                                     (self._guards, node.guards), (self._waitables, node.waitables)):
+                for entity in entities:
+                    try:
+                        self._held.enter_context(entity if target is self._waitables else entity.handle)
+                    except InvalidHandle:
+                        continue  # destroyed already
+                    target.append(entity)
+        self._direct = [(sub, sub._callback_type == Subscription.CallbackType.WithMessageInfo)
+                        for sub in self._subs if not inspect.iscoroutinefunction(sub.callback)]
+        self._left_to_rclpy = [sub for sub in self._subs if inspect.iscoroutinefunction(sub.callback)]
         self._wait_sets.clear()
 
     def _fill(self, with_waitables: bool):
