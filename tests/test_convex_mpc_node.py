@@ -109,3 +109,31 @@ def test_sim_reset_starts_the_step_count_over(node, readings):
         odom(node, k)
     assert node.sent[-3:] == [0, STEP_NS, 2 * STEP_NS]
     assert np.all(np.diff(node.sent[:10]) == STEP_NS)
+
+
+@pytest.mark.ros
+def test_estimate_after_command_controls_on_the_previous_estimate_then_updates(rclpy_context, readings):
+    """Realtime setting: the command of step k goes out before the filter sees step k's sensors,
+    on the velocity estimated at step k-1; /odom follows at its rate; one command per step."""
+    from rclpy.parameter import Parameter
+
+    n = ConvexMpcNode(context=rclpy_context, parameter_overrides=[
+        Parameter("embedded_estimator", value=True), Parameter("estimate_after_command", value=True)])
+    events = []
+    n.pub_command.publish = lambda msg: events.append(("command", cv.ns_from_stamp(msg.header.stamp)))
+    n.pub_odom.publish = lambda msg: events.append(("odom", cv.ns_from_stamp(msg.header.stamp)))
+    velocities = []
+    control = n._control
+    n._control = lambda stamp_ns, velocity, *a: (velocities.append(velocity), control(stamp_ns, velocity, *a))
+    update = n.frontend.update
+    estimates = []
+    n.frontend.update = lambda *m: estimates.append(update(*m)) or estimates[-1]
+    try:
+        for k in range(4):
+            sensors(n, readings, k)
+    finally:
+        n.destroy_node()
+    assert events == [e for k in range(4) for e in (("command", k * STEP_NS), ("odom", k * STEP_NS))]
+    assert velocities[0] is None  # no estimate before the first step: that step goes the safe way
+    for k in range(1, 4):  # each later step on the estimate of the step before
+        np.testing.assert_array_equal(velocities[k], estimates[k - 1].velocity_world)

@@ -15,7 +15,8 @@ fault-injection tests, ``inject_qp_failures`` (setting N makes the next N MPC so
 With ``embedded_estimator`` the node runs the state estimator's core itself (parameters from
 config/state_estimator.yaml) as soon as a step's three sensor messages are in, and publishes /odom
 for the other nodes: one process and one message hop less for realtime graphs on small computers;
-the state_estimator node is then not started.
+the state_estimator node is then not started. With ``estimate_after_command`` as well, each step is
+controlled on the previous step's estimate and the filter is updated after the command is out.
 """
 
 from __future__ import annotations
@@ -56,7 +57,8 @@ from gait_msgs.msg import GaitParams as GaitParamsMsg
 
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 NODE_PARAMETERS = {"cmd_vel_stamped": False, "mass_for_cot": 12.458, "embedded_estimator": False,
-                   "estimator_failover": True, "odom_every_steps": 1, "inject_qp_failures": 0}
+                   "estimate_after_command": False, "estimator_failover": True, "odom_every_steps": 1,
+                   "inject_qp_failures": 0}
 RUNTIME_PARAMETERS = ("mode", "inject_qp_failures")
 BACKUP_HOLD = 0.02  # [s] the backup estimate outlives refused sensor samples this long
 
@@ -92,6 +94,10 @@ class ConvexMpcNode(Node):
         self._state = "waiting"
         self._inject_qp_failures(params["inject_qp_failures"])
         self.frontend = OdometryFrontend(load_estimator_config()) if params["embedded_estimator"] else None
+        # Embedded, realtime: control on the estimate of the step before (2 ms old) and update the
+        # filter after the motor command is out, so the estimator is off the sensor-to-command path.
+        self.estimate_after_command = bool(params["estimate_after_command"]) and self.frontend is not None
+        self._previous_velocity: np.ndarray | None = None  # world frame [m/s], that estimate
         self.odom_every = require_integer("odom_every_steps", params["odom_every_steps"], 1, 500)
         # Failover: with /odom stale, the estimator core here, started from the last /odom velocity,
         # carries the robot through a controlled stop (supervisor "stopping") before the safe stance.
@@ -263,7 +269,16 @@ class ConvexMpcNode(Node):
         sensors = self._step_sensors(stamp_ns)
         if sensors is None or not self._is_new_step(stamp_ns):
             return
+        if self.estimate_after_command:
+            self._control(stamp_ns, self._previous_velocity)
         estimate = self.frontend.update(*sensors)
+        if self.estimate_after_command:
+            self._previous_velocity = None if estimate is None else estimate.velocity_world
+            if estimate is not None:
+                self._odom_ns = stamp_ns
+                if self._steps % self.odom_every == 0:
+                    self.pub_odom.publish(self.frontend.odometry(sensors[0], sensors[1], estimate))
+            return
         if estimate is None:
             self.get_logger().warning("embedded estimator refused a sensor step (skew, joint names or NaN/inf)",
                                       throttle_duration_sec=1.0)
