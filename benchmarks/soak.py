@@ -3,7 +3,9 @@
 Starts sim_bridge (realtime, or ``--clock lockstep``), convex_mpc and gait_policy as processes (realtime: convex_mpc
 with config/convex_mpc_realtime.yaml, which embeds the estimator; lockstep: with a state_estimator process, or with
 ``--controller-param embedded_estimator:=true`` without) and, from a light probe that
-listens to /diagnostics only, reports every ``--interval`` seconds of wall time:
+listens to /diagnostics only, reports every ``--interval`` seconds of wall time, counted from the
+controller's first walking second (start-up, the robot sinking into damping before the controller
+runs and standing up, is not part of the run):
 - missed deadlines: the sim bridge's steps applied with no new /motor_command since the step
   before (``uncommanded_steps``), as a share of its steps in the interval;
 - resident memory (VmRSS) of every node process, to show growth (from the first report on: the
@@ -86,6 +88,15 @@ def main() -> None:
             rclpy.spin_once(node, timeout_sec=0.1)
         if "a1_sim_bridge" not in diag:
             raise SystemExit(f"no /diagnostics from the sim bridge in 60 s (logs in {graph.log_dir})")
+        # Start-up is not the run: in realtime the sim runs (and the robot sinks into damping) before
+        # the controller has started and stood it up. Measure from its first walking second on.
+        while diag.get("convex_mpc", {}).get("state") != "walk" and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        if diag.get("convex_mpc", {}).get("state") != "walk":
+            raise SystemExit(f"the controller did not reach 'walk' in 60 s (logs in {graph.log_dir})")
+        settle = time.monotonic() + 1.5  # the bridge's next report covers walking only
+        while time.monotonic() < settle:
+            rclpy.spin_once(node, timeout_sec=0.1)
         start = time.monotonic()
         last = {k: int(diag["a1_sim_bridge"][k]) for k in ("steps", "uncommanded_steps")}
         lowest, was_down = float("inf"), False

@@ -62,6 +62,29 @@ def test_estop_latches_damping_until_cleared():
     assert run(sup, 0.7, 0.002).state == "stand"  # stands up again first
 
 
+def test_a_fall_latches_damping_until_cleared():
+    sup = make(stand_time=0.0, fall_tilt=1.0)
+    assert run(sup, 0.0, 0.1).state == "walk"
+    half = 0.5 * 1.05  # a 1.05 rad roll: over fall_tilt
+    rolled = Observation(ROBOT.nominal_joint_angles.copy(), np.zeros(12),
+                         np.array([math.sin(half), 0.0, 0.0, math.cos(half)]), np.zeros(3), np.zeros(4, bool),
+                         np.zeros(3))
+    result = run(sup, 0.1, 0.01, obs=rolled)
+    assert result.state == "fallen" and result.command.mode == MotorMode.DAMPING and sup.falls == 1
+    assert run(sup, 0.2, 0.1).state == "fallen"  # level again (righted by hand): still damped
+    sup.clear_estop()
+    assert run(sup, 0.3, 0.002).state == "stand" and sup.falls == 1
+
+
+def test_a_walking_tilt_is_no_fall():
+    sup = make(stand_time=0.0)
+    half = 0.5 * 0.3  # 0.3 rad of pitch, more than walking ever reaches
+    pitched = Observation(ROBOT.nominal_joint_angles.copy(), np.zeros(12),
+                          np.array([0.0, math.sin(half), 0.0, math.cos(half)]), np.zeros(3), np.ones(4, bool),
+                          np.zeros(3))
+    assert run(sup, 0.0, 0.1, obs=pitched).state != "fallen"
+
+
 def test_damping_mode_and_bad_mode_name():
     sup = make()
     sup.set_mode("damping")
@@ -137,3 +160,5 @@ def test_gait_params_rejected_or_timed_out_fall_back_to_hand_tuned():
 def test_supervisor_config_errors():
     with pytest.raises(ConfigError, match="input_timeout"):
         SupervisorConfig(input_timeout=0.0).validated()
+    with pytest.raises(ConfigError, match="fall_tilt"):
+        SupervisorConfig(fall_tilt=2.0).validated()

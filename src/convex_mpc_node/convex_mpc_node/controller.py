@@ -125,7 +125,7 @@ def load_controller_config(path=None, ignore: frozenset[str] = frozenset()) -> C
 # Keys of config/convex_mpc.yaml that configure the supervisor and the node, not the controller core.
 NODE_ONLY_PARAMETERS = frozenset({
     "mode", "stand_time", "input_timeout", "gait_timeout", "cmd_vel_timeout", "max_acceleration", "stop_deceleration",
-    "max_forward_speed", "max_lateral_speed", "max_yaw_rate", "cmd_vel_stamped", "mass_for_cot",
+    "max_forward_speed", "max_lateral_speed", "max_yaw_rate", "fall_tilt", "cmd_vel_stamped", "mass_for_cot",
     "embedded_estimator", "estimate_after_command", "estimator_failover", "odom_every_steps", "inject_qp_failures",
 })
 

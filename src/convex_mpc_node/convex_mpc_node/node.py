@@ -162,7 +162,7 @@ class ConvexMpcNode(Node):
 
     def _on_clear_estop(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.supervisor.clear_estop()
-        response.success, response.message = True, "e-stop cleared; standing up"
+        response.success, response.message = True, "e-stop and fall cleared; standing up"
         return response
 
     def _on_set_parameters(self, params) -> SetParametersResult:
@@ -311,6 +311,8 @@ class ConvexMpcNode(Node):
         self.pub_command.publish(self._last_command)
         elapsed = time.perf_counter() - t0
         self._steps += 1
+        if result.state == "fallen" and self._state != "fallen":
+            self.get_logger().error("the robot has fallen (tilt over fall_tilt): motors damped until ~/clear_estop")
         self._state = result.state
         self._step_times.append(elapsed)
         self._missed += elapsed > self.period
@@ -344,6 +346,8 @@ class ConvexMpcNode(Node):
         sensors_missing = time.monotonic() - self._last_sensor_wall > 1.0
         if sup.estopped:
             status.level, status.message = DiagnosticStatus.ERROR, "E-STOP latched: damping"
+        elif sup.fallen:
+            status.level, status.message = DiagnosticStatus.ERROR, "fallen: damping until ~/clear_estop"
         elif sensors_missing:
             status.level, status.message = DiagnosticStatus.ERROR, "no /joint_states: commands stopped (bridge damps)"
         elif self._state == "safe_stand":
@@ -359,7 +363,7 @@ class ConvexMpcNode(Node):
             "qp_solve_median_ms": f"{np.median(self._solve_times) * 1e3:.3f}" if self._solve_times else "n/a",
             "step_median_ms": f"{np.median(self._step_times) * 1e3:.3f}" if self._step_times else "n/a",
             "missed_deadlines": self._missed, "mpc_fallbacks": self.controller.mpc_fallbacks,
-            "gait_fallbacks": sup.gait_fallbacks, "safe_stand_steps": sup.safe_stand_steps,
+            "gait_fallbacks": sup.gait_fallbacks, "falls": sup.falls, "safe_stand_steps": sup.safe_stand_steps,
             "stopping_steps": sup.stopping_steps,
             "rejected_cmd_vel": sup.rejected_cmd_vel, "rejected_gait_params": sup.rejected_gait_params,
             "power_w": f"{power:.1f}",

@@ -5,6 +5,9 @@ Library core of the controller node (no ROS): the node only converts messages an
   controller), DAMPING (motors damped, the A1's safe state). Every start, and every return from
   DAMPING or a stale-input hold, goes through STAND for ``stand_time`` before the requested mode.
 - E-stop: latched DAMPING until cleared, whatever else arrives.
+- Fall: a body tilted more than ``fall_tilt`` from upright (IMU) has fallen; the motors go to
+  DAMPING, latched like the e-stop until it is cleared. Pushing on with the MPC from a fallen
+  pose flails the legs (in a realtime soak the simulated robot even went through the floor).
 - Stale inputs: with no base velocity estimate for ``input_timeout`` the robot holds a safe
   stance (joint PD); when the estimate returns it stands up again and resumes. If the node has a
   backup estimate (its own estimator core, started from the last good estimate) a walking robot
@@ -66,6 +69,7 @@ class SupervisorConfig:
     max_forward_speed: float = 3.0  # [m/s]
     max_lateral_speed: float = 1.0  # [m/s]
     max_yaw_rate: float = 2.0  # [rad/s]
+    fall_tilt: float = 1.0  # [rad] body tilt beyond which the robot has fallen (walking stays under 0.3)
 
     def validated(self) -> SupervisorConfig:
         if not isinstance(self.mode, str) or self.mode not in {m.value for m in Mode}:
@@ -79,13 +83,14 @@ class SupervisorConfig:
         require_range("max_forward_speed", self.max_forward_speed, 0.0, 5.0, low_open=True)
         require_range("max_lateral_speed", self.max_lateral_speed, 0.0, 3.0, low_open=True)
         require_range("max_yaw_rate", self.max_yaw_rate, 0.0, 6.0, low_open=True)
+        require_range("fall_tilt", self.fall_tilt, 0.3, math.pi / 2)
         return self
 
 
 @dataclass
 class StepResult:
     command: JointCommand
-    state: str  # "stand", "walk", "damping", "estop", "stopping", "safe_stand" (stale velocity estimate)
+    state: str  # "stand", "walk", "damping", "estop", "fallen", "stopping", "safe_stand" (stale estimate)
     velocity_command: VelocityCommand
 
 
@@ -96,6 +101,8 @@ class ControllerSupervisor:
         self.requested = Mode(self.config.mode)
         self.gaits = load_hand_tuned_gaits()
         self.estopped = False
+        self.fallen = False  # latched like the e-stop (see the module docstring)
+        self.falls = 0
         self.rejected_cmd_vel = 0
         self.rejected_gait_params = 0
         self.gait_fallbacks = 0
@@ -127,9 +134,10 @@ class ControllerSupervisor:
         self.estopped = True
 
     def clear_estop(self) -> None:
-        if self.estopped:
-            self.estopped = False
-            self._stand_start = None  # stand up again before anything else
+        """Clear the e-stop and a fall: the robot stands up again before anything else."""
+        if self.estopped or self.fallen:
+            self.estopped = self.fallen = False
+            self._stand_start = None
 
     def on_cmd_vel(self, vx: float, vy: float, yaw_rate: float, now: float) -> bool:
         values = np.array([vx, vy, yaw_rate], dtype=float)
@@ -164,6 +172,12 @@ class ControllerSupervisor:
             self.last_rejection = f"observation: {problem}"
             return StepResult(JointCommand.damping(), "invalid_input", VelocityCommand(*self._command))
         obs = _normalised(obs)
+        x, y = obs.orientation[0], obs.orientation[1]
+        if not self.fallen and 1.0 - 2.0 * (x * x + y * y) < math.cos(self.config.fall_tilt):  # cos(tilt)
+            self.fallen, self._walking, self._stand_start = True, False, None
+            self.falls += 1
+        if self.fallen:
+            return StepResult(JointCommand.damping(), "fallen", VelocityCommand(*self._command))
         result = self._step(now, obs, velocity_fresh, backup_velocity)
         problem = command_problem(result.command)
         if problem is not None:
