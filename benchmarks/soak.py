@@ -11,7 +11,9 @@ runs and standing up, is not part of the run):
 - resident memory (VmRSS) of every node process, to show growth (from the first report on: the
   nodes are still importing and warming up before it);
 - the lowest base height (ground truth) in the interval: under 0.18 m is a fall.
-The command cycles through 0.5, 1.0, 1.5, 1.0, 0.5 and 0 m/s, ``--segment`` seconds each.
+The command cycles through 0.5, 1.0, 1.5, 1.0, 0.5 and 0 m/s, ``--segment`` seconds each, turning
+at ``--yaw-rate`` so the robot walks circles of at most 1.5 / 0.3 = 5 m radius: the simulated
+ground (pybullet_data's plane.urdf) is a 200 m square, which a straight walk leaves after ~2 minutes.
 Issue 9 asks for 10 minutes with no growth and no fall on flat ground. In lockstep the sim runs
 slower than the wall clock and a missed deadline is a lockstep timeout. Prints a table per
 interval, then one JSON line.
@@ -53,6 +55,7 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=10.0, help="soak length, wall time [min]")
     parser.add_argument("--interval", type=float, default=30.0, help="report period [s]")
     parser.add_argument("--segment", type=float, default=20.0, help="seconds per commanded speed")
+    parser.add_argument("--yaw-rate", type=float, default=0.3, help="commanded turning rate [rad/s]")
     parser.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime", help="sim bridge clock mode")
     parser.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE",
                         help="extra convex_mpc parameter, e.g. embedded_estimator:=true (repeatable)")
@@ -63,6 +66,8 @@ def main() -> None:
         parser.error("--interval must be in [5, 600] s")
     if not 1.0 <= args.segment <= 600.0:
         parser.error("--segment must be in [1, 600] s")
+    if not 0.0 <= args.yaw_rate <= 1.0:
+        parser.error("--yaw-rate must be in [0, 1] rad/s")
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
@@ -109,6 +114,7 @@ def main() -> None:
             if now - last_cmd > 0.1:
                 msg = Twist()
                 msg.linear.x = speed
+                msg.angular.z = args.yaw_rate
                 cmd_pub.publish(msg)
                 last_cmd = now
             z = diag.get("a1_sim_bridge", {}).get("lowest_base_height_m", "inf")

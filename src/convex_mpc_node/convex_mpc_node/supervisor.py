@@ -6,8 +6,8 @@ Library core of the controller node (no ROS): the node only converts messages an
   DAMPING or a stale-input hold, goes through STAND for ``stand_time`` before the requested mode.
 - E-stop: latched DAMPING until cleared, whatever else arrives.
 - Fall: a body tilted more than ``fall_tilt`` from upright (IMU) has fallen; the motors go to
-  DAMPING, latched like the e-stop until it is cleared. Pushing on with the MPC from a fallen
-  pose flails the legs (in a realtime soak the simulated robot even went through the floor).
+  DAMPING, latched like the e-stop until it is cleared: the MPC pushing on from a fallen pose
+  only flails the legs.
 - Stale inputs: with no base velocity estimate for ``input_timeout`` the robot holds a safe
   stance (joint PD); when the estimate returns it stands up again and resumes. If the node has a
   backup estimate (its own estimator core, started from the last good estimate) a walking robot
