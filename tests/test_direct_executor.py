@@ -8,6 +8,7 @@ with message info, tasks, shutdown from a callback.
 from __future__ import annotations
 
 import time
+import uuid
 
 import pytest
 from a1_common.node_support import DirectExecutor
@@ -18,6 +19,7 @@ from std_msgs.msg import Int32
 @pytest.fixture
 def node_and_executor(rclpy_context):
     node = Node("direct_executor_test", context=rclpy_context)
+    node.topic = f"/direct_test_{uuid.uuid4().hex[:8]}"  # its own: earlier tests' endpoints may linger in discovery
     executor = DirectExecutor(context=rclpy_context)
     executor.add_node(node)
     yield node, executor
@@ -34,10 +36,10 @@ def spin_until(executor: DirectExecutor, done, timeout: float = 5.0) -> bool:
 
 def test_messages_reach_plain_and_message_info_callbacks(node_and_executor):
     node, executor = node_and_executor
-    pub = node.create_publisher(Int32, "/direct_test", 10)
+    pub = node.create_publisher(Int32, node.topic, 10)
     plain, with_info = [], []
-    node.create_subscription(Int32, "/direct_test", lambda m: plain.append(m.data), 10)
-    node.create_subscription(Int32, "/direct_test", lambda m, info: with_info.append((m.data, info)), 10)
+    node.create_subscription(Int32, node.topic, lambda m: plain.append(m.data), 10)
+    node.create_subscription(Int32, node.topic, lambda m, info: with_info.append((m.data, info)), 10)
     assert spin_until(executor, lambda: pub.get_subscription_count() == 2)
     for i in range(5):
         pub.publish(Int32(data=i))
@@ -48,7 +50,7 @@ def test_messages_reach_plain_and_message_info_callbacks(node_and_executor):
 
 def test_a_subscription_destroying_itself_leaves_the_rest_running(node_and_executor):
     node, executor = node_and_executor
-    pub = node.create_publisher(Int32, "/direct_test", 10)
+    pub = node.create_publisher(Int32, node.topic, 10)
     got, ticks = [], []
 
     def on_message(msg: Int32) -> None:
@@ -56,7 +58,7 @@ def test_a_subscription_destroying_itself_leaves_the_rest_running(node_and_execu
         if msg.data == 2:
             node.destroy_subscription(sub)
 
-    sub = node.create_subscription(Int32, "/direct_test", on_message, 10)
+    sub = node.create_subscription(Int32, node.topic, on_message, 10)
     node.create_timer(0.01, lambda: ticks.append(1))
     assert spin_until(executor, lambda: pub.get_subscription_count() == 1)
     for i in range(3):
@@ -70,9 +72,9 @@ def test_a_subscription_destroying_itself_leaves_the_rest_running(node_and_execu
 
 def test_a_task_created_in_a_callback_runs_without_waiting_for_a_timer(node_and_executor):
     node, executor = node_and_executor
-    pub = node.create_publisher(Int32, "/direct_test", 10)
+    pub = node.create_publisher(Int32, node.topic, 10)
     done = []
-    node.create_subscription(Int32, "/direct_test", lambda m: executor.create_task(lambda: done.append(m.data)), 10)
+    node.create_subscription(Int32, node.topic, lambda m: executor.create_task(lambda: done.append(m.data)), 10)
     assert spin_until(executor, lambda: pub.get_subscription_count() == 1)
     pub.publish(Int32(data=7))
     start = time.monotonic()
@@ -82,8 +84,8 @@ def test_a_task_created_in_a_callback_runs_without_waiting_for_a_timer(node_and_
 
 def test_shutdown_from_a_callback_ends_spin(node_and_executor):
     node, executor = node_and_executor
-    pub = node.create_publisher(Int32, "/direct_test", 10)
-    node.create_subscription(Int32, "/direct_test", lambda m: executor.shutdown(), 10)
+    pub = node.create_publisher(Int32, node.topic, 10)
+    node.create_subscription(Int32, node.topic, lambda m: executor.shutdown(), 10)
     assert spin_until(executor, lambda: pub.get_subscription_count() == 1)
     pub.publish(Int32(data=1))
     node.create_timer(2.0, lambda: pytest.fail("spin went on after shutdown"))
