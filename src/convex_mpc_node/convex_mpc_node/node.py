@@ -265,28 +265,23 @@ class ConvexMpcNode(Node):
 
     def _estimate_and_control(self, stamp_ns: int) -> None:
         """Embedded estimator: once this step's joints, IMU and contacts are all in, update the filter,
-        publish /odom and control; a refused sample leaves the step to the safe-stance path."""
+        control and publish /odom; a refused sample leaves the step (with ``estimate_after_command``:
+        the next one) to the safe-stance path."""
         sensors = self._step_sensors(stamp_ns)
         if sensors is None or not self._is_new_step(stamp_ns):
             return
         if self.estimate_after_command:
             self._control(stamp_ns, self._previous_velocity)
         estimate = self.frontend.update(*sensors)
-        if self.estimate_after_command:
-            self._previous_velocity = None if estimate is None else estimate.velocity_world
-            if estimate is not None:
-                self._odom_ns = stamp_ns
-                if self._steps % self.odom_every == 0:
-                    self.pub_odom.publish(self.frontend.odometry(sensors[0], sensors[1], estimate))
-            return
+        self._previous_velocity = None if estimate is None else estimate.velocity_world
         if estimate is None:
             self.get_logger().warning("embedded estimator refused a sensor step (skew, joint names or NaN/inf)",
                                       throttle_duration_sec=1.0)
-            self._control(stamp_ns, None)
-            return
-        self._odom_ns = stamp_ns
-        self._control(stamp_ns, estimate.velocity_world)
-        if self._steps % self.odom_every == 0:  # after the motor command: off the control path
+        else:
+            self._odom_ns = stamp_ns
+        if not self.estimate_after_command:
+            self._control(stamp_ns, self._previous_velocity)
+        if estimate is not None and self._steps % self.odom_every == 0:  # after the command: off its path
             self.pub_odom.publish(self.frontend.odometry(sensors[0], sensors[1], estimate))
 
     # --- the control step ----------------------------------------------------------------------
