@@ -112,20 +112,34 @@ def test_unknown_or_bad_parameters_are_config_errors(rclpy_context):
 
 
 @pytest.mark.ros
-def test_lockstep_waits_for_the_first_command(rclpy_context):
-    """Until a controller answers, the sim holds step 0 and offers its sensors again (reproducible runs)."""
-    overrides = [Parameter("lockstep_timeout", value=0.05), Parameter("settle_time", value=0.1)]
+@pytest.mark.parametrize("clock_mode", ["lockstep", "realtime"])
+def test_sim_holds_its_start_pose_until_the_first_command(rclpy_context, clock_mode):
+    """Until a controller answers, the sim holds step 0 and offers its sensors again: lockstep runs
+    stay reproducible, and a realtime robot does not fold into damping while its controller starts.
+    The first command starts the sim."""
+    overrides = [Parameter("clock_mode", value=clock_mode), Parameter("lockstep_timeout", value=0.05),
+                 Parameter("settle_time", value=0.1)]
     bridge = SimBridgeNode(context=rclpy_context, parameter_overrides=overrides)
     listener = Node("listener", context=rclpy_context)
     joints = []
     listener.create_subscription(JointState, "/joint_states", joints.append, CONTROL_QOS)
+    commander = listener.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(bridge)
     executor.add_node(listener)
     try:
-        assert spin_until(executor, lambda: len(joints) >= 3 and bridge._lockstep_timeouts >= 5, 20.0)
+        assert spin_until(executor, lambda: len(joints) >= 50, 20.0)
         assert bridge.sim.steps == 0
         assert {ns_from_stamp(m.header.stamp) for m in joints} == {0}
+        start_height = float(bridge.sim.ground_truth().base_position[2])
+        assert start_height > 0.2  # standing as spawned, not folded to the ground
+        hold = JointCommand.hold(bridge.sim.robot, np.asarray(joints[-1].position))
+
+        def commanded_five_steps() -> bool:  # answer the current step until the sim runs
+            commander.publish(motor_command_msg(hold, stamp_from_ns(bridge.sim.steps * STEP_NS)))
+            return bridge.sim.steps >= 5
+
+        assert spin_until(executor, commanded_five_steps, 20.0)
     finally:
         executor.shutdown()
         bridge.shutdown()

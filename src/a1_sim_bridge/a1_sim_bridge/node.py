@@ -6,6 +6,8 @@ only) /sim/ground_truth/odom; subscribes /motor_command. Clock modes:
   t_k, apply it and advance; if none comes within ``lockstep_timeout`` of wall time, advance anyway
   (the watchdog then sends the motors to damping after ``command_timeout`` of sim time).
 - realtime: paced by the wall clock at 1/time_step; the latest valid command is applied.
+In both modes the sim holds its start pose (sensors offered again each step, time stopped) until
+the first valid command after start-up or ~/reset.
 QoS of the 500 Hz topics: RELIABLE, KEEP_LAST 1, VOLATILE (see docs/architecture.md).
 /diagnostics (1 Hz) counts what the robot sees of its controller: ``uncommanded_steps``, steps
 applied with no command accepted since the step before (a missed 2 ms deadline); ``latency_*_ms``,
@@ -181,21 +183,17 @@ class SimBridgeNode(Node):
                             continue
                         if not got:
                             self._lockstep_timeouts += 1
-                            if self.watchdog.accepted_since_reset == 0:
-                                # Nobody has commanded this run yet (start-up, discovery): hold the
-                                # sim and offer the sensors again, so runs are reproducible.
-                                republish = self.sim.sensors()
-                                self._lock.release()
-                                try:
-                                    self._publish(republish)
-                                finally:
-                                    self._lock.acquire()
-                                continue
-                    command = self.watchdog.active(self.sim.time)
-                    # A missed 2 ms deadline, as the robot sees it: nothing new to apply this step.
-                    self._uncommanded_steps += self.watchdog.accepted == self._accepted_at_last_step
-                    self._accepted_at_last_step = self.watchdog.accepted
-                    readings = self.sim.step(command)
+                    if self.watchdog.accepted_since_reset == 0:
+                        # Nobody has commanded this run yet (start-up, discovery): hold the sim in its
+                        # start pose and offer the sensors again, so every run starts alike (a robot
+                        # left in damping while its controller starts folds to the ground).
+                        readings = self.sim.sensors()
+                    else:
+                        command = self.watchdog.active(self.sim.time)
+                        # A missed 2 ms deadline, as the robot sees it: nothing new to apply this step.
+                        self._uncommanded_steps += self.watchdog.accepted == self._accepted_at_last_step
+                        self._accepted_at_last_step = self.watchdog.accepted
+                        readings = self.sim.step(command)
                 self._publish(readings)
                 if self.clock_mode == "realtime":
                     next_deadline += period
