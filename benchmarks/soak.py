@@ -93,8 +93,8 @@ def main() -> None:
             rclpy.spin_once(node, timeout_sec=0.1)
         if "a1_sim_bridge" not in diag:
             raise SystemExit(f"no /diagnostics from the sim bridge in 60 s (logs in {graph.log_dir})")
-        # Start-up is not the run: in realtime the sim runs (and the robot sinks into damping) before
-        # the controller has started and stood it up. Measure from its first walking second on.
+        # Start-up is not the run (discovery, the controller's start, its stand-up): measure from
+        # its first walking second on.
         while diag.get("convex_mpc", {}).get("state") != "walk" and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.1)
         if diag.get("convex_mpc", {}).get("state") != "walk":
