@@ -77,17 +77,16 @@ start_graph() {  # <logdir> <world> <clock> <policy> [bridge]: a bridge and the 
   # sensors' stamps), and 500 Hz /clock callbacks in every node would cost a good part of a core.
   # Realtime: the controller runs the estimator core itself, with the realtime overlay of its
   # parameters (config/convex_mpc_realtime.yaml, see docs/architecture.md); no state_estimator process.
+  local sim_time=false overlay=()
   if [ "$clock" = lockstep ]; then
+    sim_time=true
     start_node state_estimator_node state_estimator "$logdir" --ros-args --params-file "$cfg/state_estimator.yaml" \
       -p use_sim_time:=true
-    start_node convex_mpc_node convex_mpc "$logdir" --ros-args --params-file "$cfg/convex_mpc.yaml" \
-      -p use_sim_time:=true
   else
-    start_node convex_mpc_node convex_mpc "$logdir" --ros-args --params-file "$cfg/convex_mpc.yaml" \
-      --params-file "$cfg/convex_mpc_realtime.yaml" -p use_sim_time:=false
+    overlay=(--params-file "$cfg/convex_mpc_realtime.yaml")
   fi
-  local sim_time=false
-  if [ "$clock" = lockstep ]; then sim_time=true; fi
+  start_node convex_mpc_node convex_mpc "$logdir" --ros-args --params-file "$cfg/convex_mpc.yaml" "${overlay[@]}" \
+    -p use_sim_time:=$sim_time
   start_node gait_policy_node gait_policy "$logdir" --ros-args --params-file "$cfg/gait_policy.yaml" \
     -p use_sim_time:=$sim_time -p policy:="$policy"
 }

@@ -16,13 +16,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from a1_common.robot import NUM_LEGS, A1Constants
-
-_LEG_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0])  # A1Constants.leg_sign of FR, FL, RR, RL
+from a1_common.robot import LEG_SIGNS, NUM_LEGS, A1Constants
 
 
 def _leg_params(robot: A1Constants) -> tuple[np.ndarray, float, float]:
-    return _LEG_SIGNS * robot.hip_link_length, robot.thigh_length, robot.calf_length
+    return LEG_SIGNS * robot.hip_link_length, robot.thigh_length, robot.calf_length
 
 
 def foot_positions(robot: A1Constants, q: np.ndarray) -> np.ndarray:

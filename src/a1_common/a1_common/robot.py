@@ -21,6 +21,9 @@ NUM_LEGS = 4
 JOINTS_PER_LEG = 3
 NUM_JOINTS = NUM_LEGS * JOINTS_PER_LEG
 CONFIG_ENV_VAR = "A1_ROBOT_CONFIG"
+# Side of each leg's hip link, in leg order FR, FL, RR, RL: +1 left, -1 right.
+LEG_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0])
+LEG_SIGNS.flags.writeable = False
 
 
 @dataclass(frozen=True)
@@ -49,7 +52,7 @@ class A1Constants:
 
     def leg_sign(self, leg: int) -> float:
         """+1 for left legs (FL, RL), -1 for right legs (FR, RR): the side of the hip link."""
-        return 1.0 if leg % 2 == 1 else -1.0
+        return float(LEG_SIGNS[leg])
 
 
 def default_config_path() -> Path:

@@ -27,7 +27,7 @@ from a1_common.config import (
     require_range,
 )
 from a1_common.kinematics import foot_positions, inverse_kinematics, leg_kinematics, quat_to_matrix
-from a1_common.robot import NUM_LEGS, A1Constants, a1
+from a1_common.robot import LEG_SIGNS, NUM_LEGS, A1Constants, a1
 
 from convex_mpc_node.gait import GaitParams, LegState, PhaseIntegrator
 from convex_mpc_node.mpc import ConvexMpc, MpcCommand, MpcConfig, MpcSolution, MpcState
@@ -166,8 +166,7 @@ class LocomotionController:
         self.gait = PhaseIntegrator(gait)
         self.mpc = ConvexMpc(self.config.mpc)
         neutral = self.robot.hip_offsets.copy()
-        sides = np.array([self.robot.leg_sign(i) for i in range(NUM_LEGS)])
-        neutral[:, 1] += sides * self.robot.hip_link_length  # foot under the hip, zero abduction
+        neutral[:, 1] += LEG_SIGNS * self.robot.hip_link_length  # foot under the hip, zero abduction
         self._neutral_xy = neutral[:, :2]
         self.mpc_fallbacks = 0
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="mpc") if self.config.mpc_async else None
