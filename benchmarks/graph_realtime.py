@@ -11,7 +11,14 @@ nothing else, so it takes no CPU from the graph it measures):
   the command stamped k; the median of the per-second medians, and the worst per-second p99;
 - the bridge's achieved step rate, and whether the robot stayed up (lowest base height);
 - each node's CPU use over the window, in cores (from /proc: where the 2 cores go).
-Goal of issue 6: 500 Hz held with under 1% missed deadlines for 60 s. Prints a table, then JSON.
+Goal of issue 6: 500 Hz held with under 1% missed deadlines for 60 s. Prints one line a second
+(the bridge's misses in that second, the controller's state and QP time), a table, then JSON.
+
+Scheduling experiments, without editing code (docs/architecture.md, "Realtime on a small computer"):
+- ``--fifo sim_bridge=50`` (repeatable; ``probe`` is this process) puts a node at SCHED_FIFO right
+  after it starts, before it creates its DDS threads, so all its threads inherit the priority;
+- ``--dds-transports UDPv4`` sets Fast DDS's FASTDDS_BUILTIN_TRANSPORTS for every process (the
+  default uses shared memory between processes on one machine).
 
 Usage: source scripts/env.sh && python benchmarks/graph_realtime.py [--seconds 60]
 """
@@ -38,10 +45,19 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="measurement window, wall time [s]")
     parser.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE",
                         help="extra convex_mpc parameter, e.g. embedded_estimator:=true (repeatable)")
+    parser.add_argument("--fifo", action="append", default=[], metavar="NODE=PRIORITY",
+                        help=f"run NODE ({', '.join(FIFO_TARGETS)}) at SCHED_FIFO PRIORITY 1-99 (repeatable)")
+    parser.add_argument("--dds-transports", choices=DDS_TRANSPORTS,
+                        help="Fast DDS builtin transports of every process (default: shared memory + UDP)")
     args = parser.parse_args()
     if not 5.0 <= args.seconds <= 3600.0:
         parser.error("--seconds must be in [5, 3600]")
+    fifo = _parse_fifo(parser, args.fifo)
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
+    if args.dds_transports:
+        os.environ["FASTDDS_BUILTIN_TRANSPORTS"] = args.dds_transports  # inherited by every node
+    if "probe" in fifo:
+        _set_fifo(0, fifo["probe"])
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Twist
@@ -50,11 +66,36 @@ def main() -> None:
 
     graph = Graph(Path(tempfile.mkdtemp(prefix="graph_realtime_")))
     graph.start_stack("realtime", 0.5, *args.controller_param)
+    for name, priority in fifo.items():  # the nodes are still importing: no DDS thread exists yet
+        if name == "probe":
+            continue
+        try:
+            _set_fifo(graph.procs[name].pid, priority)
+        except SystemExit:
+            graph.stop()
+            raise
     rclpy.init(args=[])  # not sys.argv: --controller-param values are no ROS arguments
     node = Node("realtime_probe")
     reports: list[dict[str, str]] = []
-    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: reports.extend(
-        {kv.key: kv.value for kv in s.values} for s in m.status if s.name == "a1_sim_bridge"), 10)
+    controller: dict[str, str] = {}
+    started = time.monotonic()
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
+            if status.name == "convex_mpc":
+                controller.update(values)
+            elif status.name == "a1_sim_bridge":
+                if reports:  # one line a second: where a run goes wrong, and when
+                    steps = int(values["steps"]) - int(reports[-1]["steps"])
+                    missed = int(values["uncommanded_steps"]) - int(reports[-1]["uncommanded_steps"])
+                    print(f"t={time.monotonic() - started:5.1f} s  missed {100 * missed / max(steps, 1):5.1f} %  "
+                          f"lowest base {values['lowest_base_height_m']} m  controller "
+                          f"{controller.get('state', '?')}, QP median {controller.get('qp_solve_median_ms', '?')} ms",
+                          flush=True)
+                reports.append(values)
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
     cmd_pub = node.create_publisher(Twist, "/cmd_vel", 10)
     try:
         deadline = time.monotonic() + 60
@@ -113,10 +154,39 @@ def main() -> None:
         "sensor_to_command_latency_p99_s": max(p99s) if p99s else None,
         "lowest_base_height_m": min(heights) if heights else None,
         **{f"cpu_{name}_cores": share for name, share in cpu.items()},
+        "fifo_priorities": fifo, "dds_transports": args.dds_transports or "fastdds-default",
     }))
     if not all(alive.values()):
         print(f"nodes died: {[k for k, v in alive.items() if not v]} (logs in {graph.log_dir})", file=sys.stderr)
         sys.exit(1)
+
+
+FIFO_TARGETS = ("sim_bridge", "convex_mpc", "gait_policy", "probe")
+DDS_TRANSPORTS = ("DEFAULT", "UDPv4", "SHM", "LARGE_DATA")
+
+
+def _parse_fifo(parser: argparse.ArgumentParser, specs: list[str]) -> dict[str, int]:
+    """``NODE=PRIORITY`` strings -> {node: priority}; a bad one ends the run with a clear message."""
+    fifo = {}
+    for spec in specs:
+        name, _, value = spec.partition("=")
+        if name not in FIFO_TARGETS:
+            parser.error(f"--fifo {spec!r}: NODE must be one of {', '.join(FIFO_TARGETS)}")
+        try:
+            priority = int(value)
+        except ValueError:
+            priority = 0
+        if not 1 <= priority <= 99:
+            parser.error(f"--fifo {spec!r}: PRIORITY must be an integer in [1, 99]")
+        fifo[name] = priority
+    return fifo
+
+
+def _set_fifo(pid: int, priority: int) -> None:
+    try:
+        os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError:
+        sys.exit(f"--fifo: SCHED_FIFO {priority} is not permitted here (needs root, CAP_SYS_NICE or an rtprio limit)")
 
 
 def _cpu_seconds(pid: int) -> float:
