@@ -56,8 +56,6 @@ def main() -> None:
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
     if args.dds_transports:
         os.environ["FASTDDS_BUILTIN_TRANSPORTS"] = args.dds_transports  # inherited by every node
-    if "probe" in fifo:
-        _set_fifo(0, fifo["probe"])
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Twist
@@ -66,11 +64,11 @@ def main() -> None:
 
     graph = Graph(Path(tempfile.mkdtemp(prefix="graph_realtime_")))
     graph.start_stack("realtime", 0.5, *args.controller_param)
-    for name, priority in fifo.items():  # the nodes are still importing: no DDS thread exists yet
-        if name == "probe":
-            continue
+    # After the start: a child forked from a FIFO probe would inherit its priority. Before any DDS
+    # thread exists: the nodes are still importing, and the probe has not called rclpy.init yet.
+    for name, priority in fifo.items():
         try:
-            _set_fifo(graph.procs[name].pid, priority)
+            _set_fifo(0 if name == "probe" else graph.procs[name].pid, priority)
         except SystemExit:
             graph.stop()
             raise
