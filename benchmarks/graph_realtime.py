@@ -89,7 +89,10 @@ def main() -> None:
                     missed = int(values["uncommanded_steps"]) - int(reports[-1]["uncommanded_steps"])
                     print(f"t={time.monotonic() - started:5.1f} s  missed {100 * missed / max(steps, 1):5.1f} %  "
                           f"lowest base {values['lowest_base_height_m']} m  controller "
-                          f"{controller.get('state', '?')}, QP median {controller.get('qp_solve_median_ms', '?')} ms",
+                          f"{controller.get('state', '?')}, step median {controller.get('step_median_ms', '?')} ms, "
+                          f"QP median {controller.get('qp_solve_median_ms', '?')} ms, gait "
+                          f"{controller.get('stepping_frequency_hz', '?')} Hz "
+                          f"swing {controller.get('swing_ratio', '?')}",
                           flush=True)
                 reports.append(values)
 

@@ -106,6 +106,7 @@ def trot_to_1_5_mps(config) -> tuple[int, int]:
             assert not loop.fallen, f"fell at {loop.sim.time:.2f} s"
     finally:
         loop.sim.close()
+        loop.controller.close()
     assert np.mean(speeds[-1500:]) == pytest.approx(1.5, rel=0.10)
     return solves, loop.controller.mpc_fallbacks
 
@@ -118,7 +119,7 @@ def test_mpc_every_third_step_still_trots_and_resolves_on_contact_changes():
 
 
 @pytest.mark.slow
-def test_realtime_controller_settings_walk_with_the_mpc_in_a_worker_thread():
+def test_realtime_controller_settings_walk_with_the_mpc_in_a_worker_process():
     """config/convex_mpc_realtime.yaml over convex_mpc.yaml (what realtime graphs run): the MPC solves
     asynchronously every 5 steps, the step uses the newest finished solve; it still tracks 1.5 m/s."""
     params = {**load_node_parameters(CONFIG / "convex_mpc.yaml", "convex_mpc"),

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,6 +30,7 @@ from a1_common.robot import LEG_SIGNS, NUM_LEGS, A1Constants, a1
 
 from convex_mpc_node.gait import GaitParams, LegState, PhaseIntegrator
 from convex_mpc_node.mpc import ConvexMpc, MpcCommand, MpcConfig, MpcSolution, MpcState
+from convex_mpc_node.mpc_worker import MpcWorkerProcess
 
 
 @dataclass(frozen=True)
@@ -51,9 +51,10 @@ class ControllerConfig:
     # never across a change of the measured contact set, the last forces are reused. Larger values
     # trade force-plan freshness for CPU, for realtime graphs on small computers.
     mpc_period_steps: int = 1
-    # Solve the MPC in a worker thread (OSQP releases the GIL while it solves): the control step
-    # never waits for a solve and uses the newest finished one, a few ms old. For realtime graphs
-    # on small computers; off in lockstep and training, where results must not depend on timing.
+    # Solve the MPC in a worker process (mpc_worker.py: its own GIL, below the step's priority):
+    # the control step never waits for a solve and uses the newest finished one, a few ms old. For
+    # realtime graphs on small computers; off in lockstep and training, where results must not
+    # depend on timing.
     mpc_async: bool = False
     # Joint positions are predicted this far ahead (q + dq * t) before use [s]: the command acts
     # on a later state than the sensors saw (transport, compute, actuation). Measured in the
@@ -169,14 +170,18 @@ class LocomotionController:
         neutral[:, 1] += LEG_SIGNS * self.robot.hip_link_length  # foot under the hip, zero abduction
         self._neutral_xy = neutral[:, :2]
         self.mpc_fallbacks = 0
-        self._worker = ThreadPoolExecutor(1, thread_name_prefix="mpc") if self.config.mpc_async else None
-        self._pending: Future[MpcSolution] | None = None  # the solve running in the worker
+        self._worker = MpcWorkerProcess(self.config.mpc) if self.config.mpc_async else None
         self.reset()
 
+    def close(self) -> None:
+        """Stop the MPC worker process, if any (it also exits on its own when this process dies)."""
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
+
     def reset(self) -> None:
-        if self._pending is not None:
-            self._pending.result()  # never two solves on one OSQP problem at once
-            self._pending = None
+        if self._worker is not None:
+            self._worker.wait()  # a solve still running belongs to the state before the reset
         self.gait.reset()
         self.last_solution: MpcSolution | None = None
         self.solved_this_step = False  # False: the last step reused the previous MPC forces
@@ -230,16 +235,18 @@ class LocomotionController:
         mpc_cfg = cfg.mpc
         plan = self.gait.contact_schedule(mpc_cfg.horizon, mpc_cfg.step, leg_states=states)
         self.solved_this_step = False
-        if self._pending is not None and self._pending.done():
-            self._adopt(self._pending.result())
-            self._pending = None
+        worker = self._worker
+        finished = worker.poll() if worker is not None else None
+        if finished is not None:
+            self._adopt(finished)
         due = (self.last_solution is None or self._steps_since_solve + 1 >= cfg.mpc_period_steps
                or not np.array_equal(plan[0], self._solved_contacts))
-        if due and self._pending is None:
+        if due and not (worker is not None and worker.pending):
             problem = (MpcState(roll, pitch, height, w_yaw, v_yaw, feet_yaw),
                        MpcCommand(v_cmd, command.yaw_rate, cfg.body_height, self._position_error, yaw_error), plan)
-            if self._worker is not None and self.last_solution is not None:
-                self._pending = self._worker.submit(self.mpc.solve, *problem)
+            # In this process: the first solve (nothing to apply meanwhile) and injected failures.
+            if worker is not None and self.last_solution is not None and not self.mpc.injected_failures:
+                worker.submit(*problem)
             else:
                 self._adopt(self.mpc.solve(*problem))
             self._steps_since_solve = 0

@@ -131,6 +131,9 @@ class ConvexMpcNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_timer(1.0, self._publish_diagnostics)
 
+    def shutdown(self) -> None:
+        self.controller.close()
+
     # --- inputs --------------------------------------------------------------------------------
     def _now(self) -> float:
         return self._latest_stamp_ns() * 1e-9
@@ -351,6 +354,7 @@ class ConvexMpcNode(Node):
             status.level, status.message = DiagnosticStatus.WARN, "no fresh /odom: stopping on the backup estimate"
         else:
             status.level, status.message = DiagnosticStatus.OK, self._state
+        gait = self.controller.gait.params
         power = float(np.mean(self._powers)) if self._powers else 0.0
         speed = float(np.mean(self._speeds)) if self._speeds else 0.0
         values = {
@@ -358,6 +362,7 @@ class ConvexMpcNode(Node):
             "qp_solve_median_ms": f"{np.median(self._solve_times) * 1e3:.3f}" if self._solve_times else "n/a",
             "step_median_ms": f"{np.median(self._step_times) * 1e3:.3f}" if self._step_times else "n/a",
             "missed_deadlines": self._missed, "mpc_fallbacks": self.controller.mpc_fallbacks,
+            "stepping_frequency_hz": f"{gait.stepping_frequency:.2f}", "swing_ratio": f"{gait.swing_ratio:.2f}",
             "gait_fallbacks": sup.gait_fallbacks, "falls": sup.falls, "safe_stand_steps": sup.safe_stand_steps,
             "stopping_steps": sup.stopping_steps,
             "rejected_cmd_vel": sup.rejected_cmd_vel, "rejected_gait_params": sup.rejected_gait_params,

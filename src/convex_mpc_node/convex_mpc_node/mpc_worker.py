@@ -1,0 +1,102 @@
+"""The convex MPC in a child process, for realtime graphs on small computers.
+
+Why a process and not a thread: a worker thread shares the controller's GIL, so on two cores its
+solves slow the 2 ms step, and at SCHED_FIFO the step starves it (same-priority FIFO threads do not
+time-slice) while the step keeps applying an ageing force plan. A child process has its own
+interpreter; it runs one realtime priority below its parent when the parent is SCHED_FIFO, so it
+takes only CPU the 2 ms path leaves idle, and it never holds a lock the step needs.
+
+The pipe carries the MPC's own dataclasses between two processes of this program (pickled by
+``multiprocessing``); nothing a user passes in is ever unpickled. The child exits when the pipe
+closes, so a killed controller leaves no orphan.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+from multiprocessing.connection import Connection
+
+import numpy as np
+
+from convex_mpc_node.mpc import ConvexMpc, MpcCommand, MpcConfig, MpcSolution, MpcState
+
+
+def _serve(conn: Connection, config: MpcConfig) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the parent decides
+    _below_parent_priority()
+    mpc = ConvexMpc(config)
+    conn.send("ready")
+    while True:
+        try:
+            request = conn.recv()
+        except (EOFError, OSError):  # the parent closed the pipe or died
+            return
+        if request is None:
+            return
+        conn.send(mpc.solve(*request))
+
+
+def _below_parent_priority() -> None:
+    """At SCHED_FIFO p (inherited), drop to p - 1: the solve yields to every thread of the 2 ms path."""
+    if os.sched_getscheduler(0) == os.SCHED_FIFO:
+        priority = os.sched_getparam(0).sched_priority
+        if priority > 1:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority - 1))
+        else:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
+class MpcWorkerProcess:
+    """One MPC solve at a time in a child process: ``submit``, then ``poll`` each step until done."""
+
+    def __init__(self, config: MpcConfig, start_timeout: float = 60.0) -> None:
+        # spawn, not fork: the parent has DDS threads, and a forked child would inherit their locks.
+        context = multiprocessing.get_context("spawn")
+        self._conn, child_conn = context.Pipe(duplex=True)
+        self._process = context.Process(target=_serve, args=(child_conn, config), name="convex_mpc_solver",
+                                        daemon=True)
+        self._process.start()
+        child_conn.close()
+        self.pending = False
+        if not self._conn.poll(start_timeout) or self._conn.recv() != "ready":
+            self.close()
+            raise RuntimeError(f"the MPC worker process did not start within {start_timeout} s")
+
+    def submit(self, state: MpcState, command: MpcCommand, contact_plan: np.ndarray) -> None:
+        if self.pending:
+            raise RuntimeError("an MPC solve is already pending in the worker process")
+        try:
+            self._conn.send((state, command, contact_plan))
+        except OSError:  # BrokenPipeError included
+            raise RuntimeError(f"the MPC worker process died (exit code {self._process.exitcode})") from None
+        self.pending = True
+
+    def poll(self) -> MpcSolution | None:
+        """The finished solve, or None while it runs (never blocks)."""
+        if not self.pending or not self._conn.poll():
+            return None
+        return self.wait()
+
+    def wait(self) -> MpcSolution | None:
+        """Block until the pending solve is done; None if nothing is pending."""
+        if not self.pending:
+            return None
+        try:
+            solution = self._conn.recv()
+        except (EOFError, OSError):
+            raise RuntimeError(f"the MPC worker process died (exit code {self._process.exitcode})") from None
+        self.pending = False
+        return solution
+
+    def close(self) -> None:
+        try:
+            self._conn.send(None)
+        except (BrokenPipeError, OSError):
+            pass
+        self._conn.close()
+        self._process.join(timeout=2.0)
+        if self._process.is_alive():
+            self._process.kill()
+            self._process.join()
