@@ -28,7 +28,7 @@ from a1_common.config import (
 from a1_common.kinematics import foot_positions, inverse_kinematics, leg_kinematics, quat_to_matrix
 from a1_common.robot import LEG_SIGNS, NUM_LEGS, A1Constants, a1
 
-from convex_mpc_node.gait import GaitParams, LegState, PhaseIntegrator
+from convex_mpc_node.gait import LEG_SWING, GaitParams, PhaseIntegrator
 from convex_mpc_node.mpc import ConvexMpc, MpcCommand, MpcConfig, MpcSolution, MpcState
 from convex_mpc_node.mpc_worker import MpcWorkerProcess
 
@@ -152,7 +152,7 @@ class VelocityCommand:
     yaw_rate: float = 0.0
 
 
-def swing_curve(p0: np.ndarray, p_air: np.ndarray, p_land: np.ndarray, s: float) -> np.ndarray:
+def swing_curve(p0: np.ndarray, p_air: np.ndarray, p_land: np.ndarray, s: float | np.ndarray) -> np.ndarray:
     """Quadratic through lift-off (s=0), mid-air (s=0.5) and landing (s=1) points (paper app. A)."""
     return 2 * (s - 0.5) * (s - 1) * p0 - 4 * s * (s - 1) * p_air + 2 * s * (s - 0.5) * p_land
 
@@ -166,9 +166,18 @@ class LocomotionController:
         self.config = (config or load_controller_config()).validated()
         self.gait = PhaseIntegrator(gait)
         self.mpc = ConvexMpc(self.config.mpc)
+        # Swing geometry that depends on the configuration only, per leg, base frame [m]: the
+        # neutral foothold (under the hip, zero abduction), the mid-air point above it, and the
+        # hip's velocity per unit yaw rate (z x r) [m/rad].
+        cfg = self.config
+        ground_z = -cfg.body_height + cfg.com_offset[2] + self.robot.foot_radius  # toe centre on the ground
         neutral = self.robot.hip_offsets.copy()
-        neutral[:, 1] += LEG_SIGNS * self.robot.hip_link_length  # foot under the hip, zero abduction
-        self._neutral_xy = neutral[:, :2]
+        neutral[:, 1] += LEG_SIGNS * self.robot.hip_link_length
+        neutral[:, 2] = ground_z
+        self._neutral = neutral
+        self._mid_air = neutral + np.array([0.0, 0.0, cfg.swing_apex_height])
+        self._yaw_tangent = np.column_stack([-neutral[:, 1], neutral[:, 0]])
+        self._raibert_clip = np.asarray(cfg.raibert_clip)
         self.mpc_fallbacks = 0
         self._worker = MpcWorkerProcess(self.config.mpc) if self.config.mpc_async else None
         self.reset()
@@ -186,7 +195,9 @@ class LocomotionController:
         self.last_solution: MpcSolution | None = None
         self.solved_this_step = False  # False: the last step reused the previous MPC forces
         self._steps_since_solve = 0
-        self._solved_contacts = np.zeros(NUM_LEGS, dtype=bool)
+        self._solved_contacts = np.zeros(NUM_LEGS, dtype=bool)  # of the newest problem handed to a solver
+        self._plan_contacts = np.zeros(NUM_LEGS, dtype=bool)  # ... and of last_solution
+        self.stopgap_steps = 0  # steps that applied static forces while a solve for new contacts ran
         self._position_error = np.zeros(2)  # yaw-aligned frame [m]
         self._yaw_target: float | None = None
         self._was_swing = np.zeros(NUM_LEGS, dtype=bool)
@@ -213,7 +224,7 @@ class LocomotionController:
         feet_yaw = (rot_rp @ (feet_base - np.asarray(cfg.com_offset)).T).T
         contact = np.asarray(obs.foot_contact, dtype=bool)
         states = self.gait.leg_states(contact)
-        stance = states != LegState.SWING
+        stance = states != LEG_SWING
         touching = stance & contact
         # COM height above the ground under the feet in contact (toe centre + toe radius).
         n_touching = int(np.count_nonzero(touching))
@@ -224,12 +235,13 @@ class LocomotionController:
 
         dt = cfg.control_period
         v_cmd = np.array([command.vx, command.vy])
-        self._position_error = np.clip(self._position_error + (v_cmd - v_yaw[:2]) * dt,
-                                       -cfg.max_position_error, cfg.max_position_error)
+        # np.minimum/np.maximum, not np.clip: on arrays this small np.clip costs several times more.
+        self._position_error = np.minimum(np.maximum(self._position_error + (v_cmd - v_yaw[:2]) * dt,
+                                                     -cfg.max_position_error), cfg.max_position_error)
         if self._yaw_target is None:
             self._yaw_target = yaw
         yaw_error = (self._yaw_target - yaw + np.pi) % (2 * np.pi) - np.pi
-        yaw_error = float(np.clip(yaw_error, -cfg.max_yaw_error, cfg.max_yaw_error))
+        yaw_error = min(max(float(yaw_error), -cfg.max_yaw_error), cfg.max_yaw_error)
         self._yaw_target = yaw + yaw_error + command.yaw_rate * dt
 
         mpc_cfg = cfg.mpc
@@ -238,7 +250,7 @@ class LocomotionController:
         worker = self._worker
         finished = worker.poll() if worker is not None else None
         if finished is not None:
-            self._adopt(finished)
+            self._adopt(finished, self._solved_contacts)
         due = (self.last_solution is None or self._steps_since_solve + 1 >= cfg.mpc_period_steps
                or not np.array_equal(plan[0], self._solved_contacts))
         if due and not (worker is not None and worker.pending):
@@ -248,19 +260,26 @@ class LocomotionController:
             if worker is not None and self.last_solution is not None and not self.mpc.injected_failures:
                 worker.submit(*problem)
             else:
-                self._adopt(self.mpc.solve(*problem))
+                self._adopt(self.mpc.solve(*problem), plan[0])
             self._steps_since_solve = 0
             self._solved_contacts = plan[0].copy()
         else:
             self._steps_since_solve += 1
-        solution = self.last_solution
+        forces = self.last_solution.forces  # yaw-aligned frame [N]
+        if not np.array_equal(self._plan_contacts, stance):
+            # Only while a worker solves for a new contact set (a touchdown or a lift-off): the plan
+            # in hand gives a foot that just landed no force, so the weight shared by the feet in
+            # contact bridges those few ms instead of letting the body drop.
+            forces = self.mpc.static_forces(stance)
+            self.stopgap_steps += 1
 
         out = JointCommand()
-        # Stance: the foot pushes on the ground with -f; torques = J^T (that force in the base frame).
-        foot_force_base = (rot_rp.T @ (-solution.forces).T).T
-        for leg in np.flatnonzero(stance):
-            sl = slice(3 * leg, 3 * leg + 3)
-            out.torque[sl] = jac[leg].T @ foot_force_base[leg]
+        # Stance: the foot pushes on the ground with -f; torques = J^T (that force in the base frame),
+        # as rows: (J^T f)^T = f^T J, all legs at once.
+        foot_force_base = -forces @ rot_rp
+        torques = np.matmul(foot_force_base[:, None, :], jac)[:, 0, :]
+        torques[~stance] = 0.0
+        out.torque = torques.reshape(-1)
 
         swing = ~stance
         desired_swing = ~self.gait.desired_contact
@@ -270,39 +289,35 @@ class LocomotionController:
         if swing.any():
             targets = feet_base.copy()
             v_base = rot.T @ np.asarray(obs.base_velocity, dtype=float)
-            progress = self.gait.normalised_phase()
-            t_stance = self.gait.stance_duration
-            for leg in np.flatnonzero(swing):
-                targets[leg] = self._swing_target(leg, v_base, obs.angular_velocity[2], command, t_stance,
-                                                  progress[leg])
-            q_swing = inverse_kinematics(robot, targets)
-            for leg in np.flatnonzero(swing):
-                sl = slice(3 * leg, 3 * leg + 3)
-                out.position[sl] = q_swing[sl]
-                out.kp[sl] = robot.joint_kp[sl]
-                out.kd[sl] = robot.joint_kd[sl]
-        out.torque = np.clip(out.torque, -robot.motor_torque_limit, robot.motor_torque_limit)
+            targets[swing] = self._swing_targets(swing, v_base, float(obs.angular_velocity[2]), command)
+            joints = np.repeat(swing, 3)
+            out.position[joints] = inverse_kinematics(robot, targets)[joints]
+            out.kp[joints] = robot.joint_kp[joints]
+            out.kd[joints] = robot.joint_kd[joints]
+        out.torque = np.minimum(np.maximum(out.torque, -robot.motor_torque_limit), robot.motor_torque_limit)
         self.gait.step(cfg.control_period)
         if not np.isfinite(out.position.sum() + out.torque.sum()):  # a NaN/inf anywhere spoils the sum
             self.mpc_fallbacks += 1
             return JointCommand.hold(robot, q_measured if np.all(np.isfinite(q_measured)) else None)
         return out
 
-    def _adopt(self, solution: MpcSolution) -> None:
+    def _adopt(self, solution: MpcSolution, contacts: np.ndarray) -> None:
         self.last_solution = solution
+        self._plan_contacts = contacts.copy()
         self.mpc_fallbacks += solution.fallback
         self.solved_this_step = True
 
-    def _swing_target(self, leg: int, v_base: np.ndarray, yaw_rate: float, command: VelocityCommand,
-                      t_stance: float, progress: float) -> np.ndarray:
-        """Foot target (base frame) along the lift-off -> mid-air -> Raibert landing curve."""
+    def _swing_targets(self, legs: np.ndarray, v_base: np.ndarray, yaw_rate: float,
+                       command: VelocityCommand) -> np.ndarray:
+        """Foot targets (n, 3), base frame, of the ``legs`` (mask) along the lift-off -> mid-air ->
+        Raibert landing curve."""
         cfg = self.config
-        ref = self._neutral_xy[leg]
-        hip_velocity = v_base[:2] + yaw_rate * np.array([-ref[1], ref[0]])
-        desired = np.array([command.vx, command.vy]) + command.yaw_rate * np.array([-ref[1], ref[0]])
-        offset = hip_velocity * t_stance / 2 + cfg.raibert_feedback_gain * (hip_velocity - desired)
-        offset = np.clip(offset, -np.asarray(cfg.raibert_clip), np.asarray(cfg.raibert_clip))
-        ground_z = -cfg.body_height + self.config.com_offset[2] + self.robot.foot_radius  # toe centre
-        land = np.array([ref[0] + offset[0], ref[1] + offset[1], ground_z])
-        air = np.array([ref[0], ref[1], ground_z + cfg.swing_apex_height])
-        return swing_curve(self._liftoff[leg], air, land, progress)
+        tangent = self._yaw_tangent[legs]
+        hip_velocity = v_base[:2] + yaw_rate * tangent
+        desired = np.array([command.vx, command.vy]) + command.yaw_rate * tangent
+        offset = hip_velocity * (0.5 * self.gait.stance_duration) + cfg.raibert_feedback_gain * (hip_velocity - desired)
+        clip = self._raibert_clip
+        landing = self._neutral[legs]  # a copy (boolean indexing)
+        landing[:, :2] += np.minimum(np.maximum(offset, -clip), clip)
+        progress = self.gait.normalised_phase()[legs][:, None]
+        return swing_curve(self._liftoff[legs], self._mid_air[legs], landing, progress)

@@ -33,6 +33,10 @@ class LegState(enum.IntEnum):
     LOST_CONTACT = 3
 
 
+# As plain ints for the 2 ms path: comparing an array with an enum member costs several times more.
+LEG_SWING, LEG_STANCE, LEG_EARLY_CONTACT, LEG_LOST_CONTACT = (int(s) for s in LegState)
+
+
 @dataclass(frozen=True)
 class GaitParams:
     """f [Hz] in (0, 4], p_swing in (0, 1), phase offsets [rad] of FR, FL, RR, RL in [0, 2pi), FR = 0."""
@@ -96,6 +100,7 @@ class PhaseIntegrator:
     """Advances the leg phases at the control rate and turns them into a contact schedule."""
 
     def __init__(self, params: GaitParams) -> None:
+        self.params: GaitParams | None = None
         self.phase_fr = 0.0  # phi_1 [rad], in [0, 2pi)
         self.set_params(params)
 
@@ -103,21 +108,43 @@ class PhaseIntegrator:
         """All legs restart at the beginning of their cycle (FR lifts off first)."""
         self.phase_fr = 0.0
 
+    @property
+    def phase_fr(self) -> float:
+        return self._phase_fr
+
+    @phase_fr.setter
+    def phase_fr(self, value: float) -> None:
+        self._phase_fr = value
+        self._views: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
     def set_params(self, params: GaitParams) -> None:
         """New gait parameters; phi_1 continues from where it is, without a jump."""
-        if params is getattr(self, "params", None):
+        if params is self.params:
             return  # set again every 2 ms by the supervisor: validated already
         self.params = params.validated()
         self._offsets = np.asarray(self.params.phase_offsets, dtype=float)
+        self._views = None
 
     def step(self, dt: float) -> None:
         """Advance by ``dt`` seconds: phi_1 <- phi_1 + 2 pi f dt (mod 2 pi)."""
         self.phase_fr = (self.phase_fr + TWO_PI * self.params.stepping_frequency * dt) % TWO_PI
 
+    def _phase_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(phases, desired contact, normalised phase), computed once per phase and gait: a control
+        step reads them several times. Read-only, so no caller can spoil them for the others."""
+        if self._views is None:
+            phi = (self.phase_fr + self._offsets) % TWO_PI
+            cut = self.swing_threshold
+            views = (phi, phi >= cut, np.where(phi < cut, phi / cut, (phi - cut) / (TWO_PI - cut)))
+            for view in views:
+                view.flags.writeable = False
+            self._views = views
+        return self._views
+
     @property
     def phases(self) -> np.ndarray:
         """phi_i = phi_1 + theta_i of each leg [rad], in [0, 2pi)."""
-        return (self.phase_fr + self._offsets) % TWO_PI
+        return self._phase_views()[0]
 
     @property
     def swing_threshold(self) -> float:
@@ -126,12 +153,11 @@ class PhaseIntegrator:
     @property
     def desired_contact(self) -> np.ndarray:
         """True for legs the schedule wants in stance now."""
-        return self.phases >= self.swing_threshold
+        return self._phase_views()[1]
 
     def normalised_phase(self) -> np.ndarray:
         """Progress in [0, 1) through the current swing or stance of each leg."""
-        phi, cut = self.phases, self.swing_threshold
-        return np.where(phi < cut, phi / cut, (phi - cut) / (TWO_PI - cut))
+        return self._phase_views()[2]
 
     @property
     def stance_duration(self) -> float:
@@ -147,9 +173,9 @@ class PhaseIntegrator:
         desired = self.desired_contact
         progress = self.normalised_phase()
         contact = np.asarray(foot_contact, dtype=bool)
-        states = np.where(desired, int(LegState.STANCE), int(LegState.SWING))
-        states[desired & ~contact & (progress > LOST_CONTACT_STANCE_FRACTION)] = int(LegState.LOST_CONTACT)
-        states[~desired & contact & (progress > EARLY_CONTACT_SWING_FRACTION)] = int(LegState.EARLY_CONTACT)
+        states = np.where(desired, LEG_STANCE, LEG_SWING)
+        states[desired & ~contact & (progress > LOST_CONTACT_STANCE_FRACTION)] = LEG_LOST_CONTACT
+        states[~desired & contact & (progress > EARLY_CONTACT_SWING_FRACTION)] = LEG_EARLY_CONTACT
         return states
 
     def contact_schedule(self, horizon: int, step: float, foot_contact: np.ndarray | None = None,
@@ -166,5 +192,5 @@ class PhaseIntegrator:
         if leg_states is None and foot_contact is not None:
             leg_states = self.leg_states(foot_contact)
         if leg_states is not None and horizon > 0:
-            plan[0] = leg_states != LegState.SWING
+            plan[0] = leg_states != LEG_SWING
         return plan

@@ -362,6 +362,7 @@ class ConvexMpcNode(Node):
             "qp_solve_median_ms": f"{np.median(self._solve_times) * 1e3:.3f}" if self._solve_times else "n/a",
             "step_median_ms": f"{np.median(self._step_times) * 1e3:.3f}" if self._step_times else "n/a",
             "missed_deadlines": self._missed, "mpc_fallbacks": self.controller.mpc_fallbacks,
+            "mpc_stopgap_steps": self.controller.stopgap_steps,
             "stepping_frequency_hz": f"{gait.stepping_frequency:.2f}", "swing_ratio": f"{gait.swing_ratio:.2f}",
             "gait_fallbacks": sup.gait_fallbacks, "falls": sup.falls, "safe_stand_steps": sup.safe_stand_steps,
             "stopping_steps": sup.stopping_steps,

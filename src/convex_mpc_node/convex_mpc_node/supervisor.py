@@ -254,7 +254,8 @@ class ControllerSupervisor:
         if stopping or (cfg.cmd_vel_timeout > 0 and now - self._cmd_time > cfg.cmd_vel_timeout):
             target = np.zeros(3)
         step = (cfg.stop_deceleration if stopping else cfg.max_acceleration) * dt
-        self._command = self._command + np.clip(target - self._command, -step, step)
+        # np.minimum/np.maximum: np.clip costs several times more on a 3-vector, every 2 ms.
+        self._command = self._command + np.minimum(np.maximum(target - self._command, -step), step)
         return VelocityCommand(*self._command)
 
     def _current_gait(self, now: float, command: VelocityCommand) -> GaitParams:

@@ -17,6 +17,7 @@ Built on filterpy.kalman.KalmanFilter. Noise values come from config/state_estim
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,19 +105,30 @@ class SensorSample:
 class Estimate:
     time: float  # [s]
     velocity_world: np.ndarray  # (3,) [m/s]
-    velocity_body: np.ndarray  # (3,) [m/s]
     covariance_world: np.ndarray  # (3, 3) [(m/s)^2]
-    covariance_body: np.ndarray  # (3, 3)
     orientation: np.ndarray  # (4,) (x, y, z, w), from the IMU
     height: float | None  # base COM above the ground under the stance feet [m]; None if no contact
     stale: bool
     diverging: bool
     feet_used: int  # feet that updated the filter this sample
 
+    # The body-frame views are computed when read: a 500 Hz controller needs only the world velocity.
+    @property
+    def velocity_body(self) -> np.ndarray:
+        """(3,) [m/s], base frame."""
+        return quat_to_matrix(self.orientation).T @ self.velocity_world
+
+    @property
+    def covariance_body(self) -> np.ndarray:
+        """(3, 3) [(m/s)^2], base frame."""
+        rot = quat_to_matrix(self.orientation)
+        return rot.T @ self.covariance_world @ rot
+
 
 def _skew(w: np.ndarray) -> np.ndarray:
     """The matrix S with S @ p = w x p."""
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    wx, wy, wz = w.tolist()
+    return np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
 
 
 # Row vectors w times this are w x e_z = (w_y, -w_x, 0).
@@ -130,6 +142,10 @@ class VelocityEstimator:
         self.config = (config or load_estimator_config()).validated()
         self.robot = robot or a1()
         self.rejected_samples = 0
+        cfg = self.config
+        self._process_noise = np.diag(cfg.process_noise)  # per second of prediction
+        self._gravity = np.array([0.0, 0.0, cfg.gravity])
+        self._measurement_noise = np.asarray(cfg.measurement_noise, dtype=float)
         self.reset()
 
     def reset(self, velocity: np.ndarray | None = None) -> None:
@@ -155,15 +171,15 @@ class VelocityEstimator:
             return self.estimate(sample.time if np.isfinite(sample.time) else (self._last_time or 0.0))
         cfg = self.config
         kf = self._kf
-        rot = quat_to_matrix(np.asarray(sample.orientation, dtype=float) / np.linalg.norm(sample.orientation))
+        quaternion = np.asarray(sample.orientation, dtype=float)
+        rot = quat_to_matrix(quaternion / math.sqrt(quaternion @ quaternion))
         dt = 0.0 if self._last_time is None else sample.time - self._last_time
         if dt < 0:  # time went backwards: the source restarted
             self.reset()
             dt = 0.0
-        specific_force = np.asarray(sample.linear_acceleration, dtype=float)
-        accel_world = rot @ specific_force - np.array([0.0, 0.0, cfg.gravity])
+        accel_world = rot @ np.asarray(sample.linear_acceleration, dtype=float) - self._gravity  # [m/s^2]
         u = accel_world * dt if dt <= cfg.max_gap else np.zeros(3)  # no extrapolation over gaps
-        kf.predict(u=u, Q=np.diag(cfg.process_noise) * dt)
+        kf.predict(u=u, Q=self._process_noise * dt)
         self._last_time = sample.time
 
         contact = np.asarray(sample.foot_contact, dtype=bool)
@@ -179,44 +195,43 @@ class VelocityEstimator:
         if used:
             dq_legs = dq.reshape(4, 3)[legs]
             # Foot-centre velocity relative to the base, base frame, all stance legs at once.
-            foot_velocity = np.einsum("lij,lj->li", jac[legs], dq_legs) + feet[legs] @ _skew(omega).T
+            foot_velocity = np.matmul(jac[legs], dq_legs[:, :, None])[:, :, 0] + feet[legs] @ _skew(omega).T
             # The foot is a sphere rolling on the ground: its centre (what the kinematics give) moves
             # at omega_foot x (r e_z) while the contact point stays still (about 7% of the speed
             # when walking). omega_foot = omega + abduction rate e_x + (thigh + calf rate) e_y'.
-            abduction = q.reshape(4, 3)[legs, 0]
+            abduction = q[3 * legs]
             pitch_rate = dq_legs[:, 1] + dq_legs[:, 2]
-            omega_foot = omega + np.stack(
-                [dq_legs[:, 0], pitch_rate * np.cos(abduction), pitch_rate * np.sin(abduction)], axis=1)
-            rolling = self.robot.foot_radius * (omega_foot @ rot.T @ _CROSS_EZ)
-            measurements = -foot_velocity @ rot.T + rolling
-            scale = np.ones(used)
-            scale[sample.time - self._contact_since[legs] < cfg.touchdown_window] *= cfg.soft_contact_scale
-            scale[np.asarray(sample.foot_force)[legs] < cfg.low_force] *= cfg.soft_contact_scale
-            # The stance feet as one measurement: each foot measures the velocity directly (H = I) with
-            # its own diagonal R, so the stacked update equals one update with the inverse-variance
-            # weighted mean and the combined variance (information form), for a 3x3 update's cost.
-            weights = 1.0 / np.outer(scale, cfg.measurement_noise)  # (used, 3) [(m/s)^-2]
-            fused_variance = 1.0 / weights.sum(axis=0)
-            kf.update((weights * measurements).sum(axis=0) * fused_variance, R=np.diag(fused_variance))
+            omega_foot = np.empty((used, 3))
+            omega_foot[:, 0] = dq_legs[:, 0]
+            omega_foot[:, 1] = pitch_rate * np.cos(abduction)
+            omega_foot[:, 2] = pitch_rate * np.sin(abduction)
+            omega_foot += omega
+            rolling = self.robot.foot_radius * (omega_foot @ rot.T @ _CROSS_EZ)  # (rot w) x e_z, world frame
+            measurements = rolling - foot_velocity @ rot.T
+            # Each stance foot measures the velocity directly (H = I) with noise R_foot = scale * R.
+            # Stacked, the update equals one update with the inverse-variance weighted mean of the
+            # feet and R / sum(1 / scale) (information form), for a 3x3 update's cost.
+            inverse_scale = np.ones(used)
+            inverse_scale[sample.time - self._contact_since[legs] < cfg.touchdown_window] /= cfg.soft_contact_scale
+            inverse_scale[np.asarray(sample.foot_force)[legs] < cfg.low_force] /= cfg.soft_contact_scale
+            total = inverse_scale.sum()
+            kf.update(inverse_scale @ measurements / total, R=np.diag(self._measurement_noise / total))
         self._feet_used = used
-        self._orientation = np.asarray(sample.orientation, dtype=float)
-        if contact.any():
-            ground = -(rot @ feet[contact].T)[2] + self.robot.foot_radius
-            self._height = float(np.mean(ground))
+        self._orientation = quaternion
+        if used:
+            self._height = float(self.robot.foot_radius - (feet[legs] @ rot[2]).sum() / used)
         return self.estimate(sample.time)
 
     def estimate(self, now: float) -> Estimate:
         """The current estimate as seen at ``now`` (flags stale if no valid sample recently)."""
         cfg = self.config
         kf = self._kf
-        rot = quat_to_matrix(self._orientation)
         v = kf.x.reshape(3).copy()
         cov = np.array(kf.P)
         stale = self._last_time is None or now - self._last_time > cfg.stale_timeout
-        diverging = bool(np.trace(cov) > cfg.max_covariance or np.linalg.norm(v) > cfg.max_speed
-                         or not np.all(np.isfinite(v)))
-        return Estimate(time=now, velocity_world=v, velocity_body=rot.T @ v, covariance_world=cov,
-                        covariance_body=rot.T @ cov @ rot, orientation=self._orientation.copy(),
+        speed_squared = float(v @ v)  # a NaN compares False: flagged as diverging too
+        diverging = not (np.trace(cov) <= cfg.max_covariance and speed_squared <= cfg.max_speed**2)
+        return Estimate(time=now, velocity_world=v, covariance_world=cov, orientation=self._orientation.copy(),
                         height=self._height, stale=stale, diverging=diverging, feet_used=self._feet_used)
 
     @staticmethod
