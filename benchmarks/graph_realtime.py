@@ -90,7 +90,8 @@ def main() -> None:
                     print(f"t={time.monotonic() - started:5.1f} s  missed {100 * missed / max(steps, 1):5.1f} %  "
                           f"lowest base {values['lowest_base_height_m']} m  controller "
                           f"{controller.get('state', '?')}, step median {controller.get('step_median_ms', '?')} ms, "
-                          f"QP median {controller.get('qp_solve_median_ms', '?')} ms, stopgap steps "
+                          f"QP median {controller.get('qp_solve_median_ms', '?')} ms, plan delay "
+                          f"{controller.get('mpc_plan_delay_median_ms', '?')} ms, stopgap steps "
                           f"{controller.get('mpc_stopgap_steps', '?')}, "
                           f"gait {controller.get('stepping_frequency_hz', '?')} Hz "
                           f"swing {controller.get('swing_ratio', '?')}",

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
+import textwrap
 import time
 
 import numpy as np
@@ -58,14 +61,14 @@ def test_child_exits_when_closed_and_a_dead_child_is_reported():
     worker = MpcWorkerProcess(MpcConfig())
     pid = worker._process.pid
     worker.close()
-    assert not worker._process.is_alive()
+    assert worker._process.poll() is not None
     with pytest.raises(ProcessLookupError):
         os.kill(pid, 0)
 
     worker = MpcWorkerProcess(MpcConfig())
     try:
         worker._process.kill()
-        worker._process.join()
+        worker._process.wait()
         config = MpcConfig()
         with pytest.raises(RuntimeError, match="the MPC worker process died"):
             worker.submit(make_state(), MpcCommand(np.zeros(2), 0.0, 0.26), np.ones((config.horizon, 4), dtype=bool))
@@ -94,3 +97,23 @@ def test_child_runs_below_a_realtime_parent(parent_priority, child_policy, child
         assert os.sched_getparam(pid).sched_priority == child_priority
     finally:
         worker.close()
+
+
+def test_a_plain_script_can_start_it(tmp_path):
+    """Started as its own interpreter: a user's script needs no ``if __name__ == "__main__"`` guard
+    (multiprocessing's spawn would run the script again in the child, and fail)."""
+    script = tmp_path / "no_guard.py"
+    script.write_text(textwrap.dedent("""
+        import numpy as np
+        from convex_mpc_node.mpc import MpcCommand, MpcConfig, MpcState
+        from convex_mpc_node.mpc_worker import MpcWorkerProcess
+        worker = MpcWorkerProcess(MpcConfig())
+        feet = np.array([[0.18, -0.13, -0.26], [0.18, 0.13, -0.26], [-0.18, -0.13, -0.26], [-0.18, 0.13, -0.26]])
+        worker.submit(MpcState(0.0, 0.0, 0.26, np.zeros(3), np.zeros(3), feet),
+                      MpcCommand(np.zeros(2), 0.0, 0.26), np.ones((MpcConfig().horizon, 4), dtype=bool))
+        print("solved", worker.wait().solved)
+        worker.close()
+    """))
+    result = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "solved True" in result.stdout

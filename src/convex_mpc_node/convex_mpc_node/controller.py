@@ -198,6 +198,7 @@ class LocomotionController:
         self._solved_contacts = np.zeros(NUM_LEGS, dtype=bool)  # of the newest problem handed to a solver
         self._plan_contacts = np.zeros(NUM_LEGS, dtype=bool)  # ... and of last_solution
         self.stopgap_steps = 0  # steps that applied static forces while a solve for new contacts ran
+        self.plan_delay_steps = 0  # control steps from handing the adopted solve to the worker to adopting it
         self._position_error = np.zeros(2)  # yaw-aligned frame [m]
         self._yaw_target: float | None = None
         self._was_swing = np.zeros(NUM_LEGS, dtype=bool)
@@ -251,6 +252,7 @@ class LocomotionController:
         finished = worker.poll() if worker is not None else None
         if finished is not None:
             self._adopt(finished, self._solved_contacts)
+            self.plan_delay_steps = self._steps_since_solve + 1  # submitted that many steps ago
         due = (self.last_solution is None or self._steps_since_solve + 1 >= cfg.mpc_period_steps
                or not np.array_equal(plan[0], self._solved_contacts))
         if due and not (worker is not None and worker.pending):

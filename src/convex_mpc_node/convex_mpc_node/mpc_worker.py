@@ -13,9 +13,11 @@ closes, so a killed controller leaves no orphan.
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import signal
+import socket
+import subprocess
+import sys
 from multiprocessing.connection import Connection
 
 import numpy as np
@@ -23,19 +25,19 @@ import numpy as np
 from convex_mpc_node.mpc import ConvexMpc, MpcCommand, MpcConfig, MpcSolution, MpcState
 
 
-def _serve(conn: Connection, config: MpcConfig) -> None:
+def _serve(conn: Connection) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the parent decides
     _below_parent_priority()
-    mpc = ConvexMpc(config)
+    mpc = ConvexMpc(conn.recv())
     conn.send("ready")
     while True:
         try:
             request = conn.recv()
-        except (EOFError, OSError):  # the parent closed the pipe or died
+            if request is None:
+                return
+            conn.send(mpc.solve(*request))
+        except (EOFError, OSError):  # the parent closed the pipe (a solve may have been pending) or died
             return
-        if request is None:
-            return
-        conn.send(mpc.solve(*request))
 
 
 def _below_parent_priority() -> None:
@@ -52,17 +54,24 @@ class MpcWorkerProcess:
     """One MPC solve at a time in a child process: ``submit``, then ``poll`` each step until done."""
 
     def __init__(self, config: MpcConfig, start_timeout: float = 60.0) -> None:
-        # spawn, not fork: the parent has DDS threads, and a forked child would inherit their locks.
-        context = multiprocessing.get_context("spawn")
-        self._conn, child_conn = context.Pipe(duplex=True)
-        self._process = context.Process(target=_serve, args=(child_conn, config), name="convex_mpc_solver",
-                                        daemon=True)
-        self._process.start()
-        child_conn.close()
+        # A fresh interpreter running this module, not multiprocessing's spawn: spawn re-imports the
+        # parent's main script, which breaks scripts without a __main__ guard; and no fork, since
+        # the parent has DDS threads whose locks a forked child would inherit.
+        parent_end, child_end = socket.socketpair()
+        self._process = subprocess.Popen([sys.executable, "-m", __name__, str(child_end.fileno())],
+                                         pass_fds=[child_end.fileno()], stdin=subprocess.DEVNULL)
+        child_end.close()
+        self._conn = Connection(parent_end.detach())
         self.pending = False
-        if not self._conn.poll(start_timeout) or self._conn.recv() != "ready":
+        try:
+            self._conn.send(config)
+            started = self._conn.poll(start_timeout) and self._conn.recv() == "ready"
+        except (EOFError, OSError):
+            started = False
+        if not started:
             self.close()
-            raise RuntimeError(f"the MPC worker process did not start within {start_timeout} s")
+            raise RuntimeError(f"the MPC worker process did not start within {start_timeout} s "
+                               f"(exit code {self._process.returncode}; its error output is above)")
 
     def submit(self, state: MpcState, command: MpcCommand, contact_plan: np.ndarray) -> None:
         if self.pending:
@@ -70,7 +79,7 @@ class MpcWorkerProcess:
         try:
             self._conn.send((state, command, contact_plan))
         except OSError:  # BrokenPipeError included
-            raise RuntimeError(f"the MPC worker process died (exit code {self._process.exitcode})") from None
+            raise RuntimeError(f"the MPC worker process died (exit code {self._process.poll()})") from None
         self.pending = True
 
     def poll(self) -> MpcSolution | None:
@@ -86,7 +95,7 @@ class MpcWorkerProcess:
         try:
             solution = self._conn.recv()
         except (EOFError, OSError):
-            raise RuntimeError(f"the MPC worker process died (exit code {self._process.exitcode})") from None
+            raise RuntimeError(f"the MPC worker process died (exit code {self._process.poll()})") from None
         self.pending = False
         return solution
 
@@ -96,7 +105,12 @@ class MpcWorkerProcess:
         except (BrokenPipeError, OSError):
             pass
         self._conn.close()
-        self._process.join(timeout=2.0)
-        if self._process.is_alive():
+        try:
+            self._process.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
             self._process.kill()
-            self._process.join()
+            self._process.wait()
+
+
+if __name__ == "__main__":
+    _serve(Connection(int(sys.argv[1])))

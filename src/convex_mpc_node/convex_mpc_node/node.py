@@ -86,6 +86,7 @@ class ConvexMpcNode(Node):
         self._odom_ns = -1
         self._last_sensor_wall = float("-inf")
         self._solve_times: deque[float] = deque(maxlen=500)
+        self._plan_delays: deque[float] = deque(maxlen=500)  # [s] MPC worker round trips, in control steps
         self._step_times: deque[float] = deque(maxlen=500)
         self._powers: deque[float] = deque(maxlen=500)
         self._speeds: deque[float] = deque(maxlen=500)
@@ -314,8 +315,9 @@ class ConvexMpcNode(Node):
         self._state = result.state
         self._step_times.append(elapsed)
         self._missed += elapsed > self.period
-        if result.state == "walk" and self.controller.last_solution is not None:
+        if result.state == "walk" and self.controller.solved_this_step:
             self._solve_times.append(self.controller.last_solution.solve_time)
+            self._plan_delays.append(self.controller.plan_delay_steps * self.period)
         effort, joint_velocity = np.asarray(joints.effort, dtype=float), np.asarray(joints.velocity, dtype=float)
         if effort.shape == joint_velocity.shape:  # efforts are optional in sensor_msgs/JointState
             self._powers.append(float(motor_power(effort, joint_velocity).sum()))
@@ -360,6 +362,7 @@ class ConvexMpcNode(Node):
         values = {
             "state": self._state, "requested_mode": sup.requested.value, "steps": self._steps,
             "qp_solve_median_ms": f"{np.median(self._solve_times) * 1e3:.3f}" if self._solve_times else "n/a",
+            "mpc_plan_delay_median_ms": f"{np.median(self._plan_delays) * 1e3:.1f}" if self._plan_delays else "n/a",
             "step_median_ms": f"{np.median(self._step_times) * 1e3:.3f}" if self._step_times else "n/a",
             "missed_deadlines": self._missed, "mpc_fallbacks": self.controller.mpc_fallbacks,
             "mpc_stopgap_steps": self.controller.stopgap_steps,
