@@ -38,6 +38,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
+from graph_helpers import Graph, add_scheduling_options, apply_fifo, scheduling_from_args  # noqa: E402
 
 
 def main() -> None:
@@ -45,33 +46,20 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="measurement window, wall time [s]")
     parser.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE",
                         help="extra convex_mpc parameter, e.g. embedded_estimator:=true (repeatable)")
-    parser.add_argument("--fifo", action="append", default=[], metavar="NODE=PRIORITY",
-                        help=f"run NODE ({', '.join(FIFO_TARGETS)}) at SCHED_FIFO PRIORITY 1-99 (repeatable)")
-    parser.add_argument("--dds-transports", choices=DDS_TRANSPORTS,
-                        help="Fast DDS builtin transports of every process (default: shared memory + UDP)")
+    add_scheduling_options(parser)
     args = parser.parse_args()
     if not 5.0 <= args.seconds <= 3600.0:
         parser.error("--seconds must be in [5, 3600]")
-    fifo = _parse_fifo(parser, args.fifo)
+    fifo = scheduling_from_args(parser, args)
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
-    if args.dds_transports:
-        os.environ["FASTDDS_BUILTIN_TRANSPORTS"] = args.dds_transports  # inherited by every node
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Twist
-    from graph_helpers import Graph
     from rclpy.node import Node
 
     graph = Graph(Path(tempfile.mkdtemp(prefix="graph_realtime_")))
     graph.start_stack("realtime", 0.5, *args.controller_param)
-    # After the start: a child forked from a FIFO probe would inherit its priority. Before any DDS
-    # thread exists: the nodes are still importing, and the probe has not called rclpy.init yet.
-    for name, priority in fifo.items():
-        try:
-            _set_fifo(0 if name == "probe" else graph.procs[name].pid, priority)
-        except SystemExit:
-            graph.stop()
-            raise
+    apply_fifo(graph, fifo)
     rclpy.init(args=[])  # not sys.argv: --controller-param values are no ROS arguments
     node = Node("realtime_probe")
     reports: list[dict[str, str]] = []
@@ -87,8 +75,9 @@ def main() -> None:
                 if reports:  # one line a second: where a run goes wrong, and when
                     steps = int(values["steps"]) - int(reports[-1]["steps"])
                     missed = int(values["uncommanded_steps"]) - int(reports[-1]["uncommanded_steps"])
+                    damped = int(values["damping_fallbacks"]) - int(reports[-1]["damping_fallbacks"])
                     print(f"t={time.monotonic() - started:5.1f} s  missed {100 * missed / max(steps, 1):5.1f} %  "
-                          f"lowest base {values['lowest_base_height_m']} m  controller "
+                          f"watchdog damped {damped}x  lowest base {values['lowest_base_height_m']} m  controller "
                           f"{controller.get('state', '?')}, step median {controller.get('step_median_ms', '?')} ms, "
                           f"QP median {controller.get('qp_solve_median_ms', '?')} ms, plan delay "
                           f"{controller.get('mpc_plan_delay_median_ms', '?')} ms, stopgap steps "
@@ -123,7 +112,7 @@ def main() -> None:
         alive = graph.alive()
     finally:
         node.destroy_node()
-        rclpy.shutdown()
+        rclpy.try_shutdown()  # SIGTERM may have shut the context down already
         graph.stop()
     if len(window_reports) < 2:
         sys.exit(f"too few /diagnostics from the sim bridge ({len(window_reports)}); logs in {graph.log_dir}")
@@ -162,34 +151,6 @@ def main() -> None:
     if not all(alive.values()):
         print(f"nodes died: {[k for k, v in alive.items() if not v]} (logs in {graph.log_dir})", file=sys.stderr)
         sys.exit(1)
-
-
-FIFO_TARGETS = ("sim_bridge", "convex_mpc", "gait_policy", "probe")
-DDS_TRANSPORTS = ("DEFAULT", "UDPv4", "SHM", "LARGE_DATA")
-
-
-def _parse_fifo(parser: argparse.ArgumentParser, specs: list[str]) -> dict[str, int]:
-    """``NODE=PRIORITY`` strings -> {node: priority}; a bad one ends the run with a clear message."""
-    fifo = {}
-    for spec in specs:
-        name, _, value = spec.partition("=")
-        if name not in FIFO_TARGETS:
-            parser.error(f"--fifo {spec!r}: NODE must be one of {', '.join(FIFO_TARGETS)}")
-        try:
-            priority = int(value)
-        except ValueError:
-            priority = 0
-        if not 1 <= priority <= 99:
-            parser.error(f"--fifo {spec!r}: PRIORITY must be an integer in [1, 99]")
-        fifo[name] = priority
-    return fifo
-
-
-def _set_fifo(pid: int, priority: int) -> None:
-    try:
-        os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(priority))
-    except PermissionError:
-        sys.exit(f"--fifo: SCHED_FIFO {priority} is not permitted here (needs root, CAP_SYS_NICE or an rtprio limit)")
 
 
 def _cpu_seconds(pid: int) -> float:

@@ -19,6 +19,7 @@ slower than the wall clock and a missed deadline is a lockstep timeout. Prints a
 interval, then one JSON line.
 
 Usage: source scripts/env.sh && python benchmarks/soak.py [--minutes 10] [--interval 30]
+       [--fifo NODE=PRIORITY ...] [--dds-transports UDPv4]  (as in benchmarks/graph_realtime.py)
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
+from graph_helpers import Graph, add_scheduling_options, apply_fifo, scheduling_from_args  # noqa: E402
 
 SPEEDS = (0.5, 1.0, 1.5, 1.0, 0.5, 0.0)  # [m/s]
 FELL_BELOW = 0.18  # [m]
@@ -59,6 +61,7 @@ def main() -> None:
     parser.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime", help="sim bridge clock mode")
     parser.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE",
                         help="extra convex_mpc parameter, e.g. embedded_estimator:=true (repeatable)")
+    add_scheduling_options(parser)
     args = parser.parse_args()
     if not 0.5 <= args.minutes <= 600:
         parser.error("--minutes must be in [0.5, 600]")
@@ -68,15 +71,16 @@ def main() -> None:
         parser.error("--segment must be in [1, 600] s")
     if not 0.0 <= args.yaw_rate <= 1.0:
         parser.error("--yaw-rate must be in [0, 1] rad/s")
+    fifo = scheduling_from_args(parser, args)
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Twist
-    from graph_helpers import Graph
     from rclpy.node import Node
 
     graph = Graph(Path(tempfile.mkdtemp(prefix="soak_")))
     graph.start_stack(args.clock, 0.5, *args.controller_param)
+    apply_fifo(graph, fifo)
     rclpy.init(args=[])  # not sys.argv: --controller-param values are no ROS arguments
     node = Node("soak_probe")
     diag: dict[str, dict[str, str]] = {}
@@ -103,10 +107,11 @@ def main() -> None:
         while time.monotonic() < settle:
             rclpy.spin_once(node, timeout_sec=0.1)
         start = time.monotonic()
-        last = {k: int(diag["a1_sim_bridge"][k]) for k in ("steps", "uncommanded_steps")}
+        last = {k: int(diag["a1_sim_bridge"][k]) for k in ("steps", "uncommanded_steps", "damping_fallbacks")}
         lowest, was_down = float("inf"), False
         next_report, last_cmd = start + args.interval, 0.0
-        print(f"{'t [s]':>6} {'speed':>6} {'steps':>7} {'missed %':>9} {'lowest z [m]':>13}  RSS [MiB] per node")
+        print(f"{'t [s]':>6} {'speed':>6} {'steps':>7} {'missed %':>9} {'damped':>7} {'lowest z [m]':>13}  "
+              "RSS [MiB] per node")
         while time.monotonic() - start < args.minutes * 60:
             rclpy.spin_once(node, timeout_sec=0.05)
             now = time.monotonic()
@@ -123,6 +128,7 @@ def main() -> None:
                 bridge = diag["a1_sim_bridge"]
                 steps = int(bridge["steps"]) - last["steps"]
                 missed = int(bridge["uncommanded_steps"]) - last["uncommanded_steps"]
+                damped = int(bridge["damping_fallbacks"]) - last["damping_fallbacks"]  # the bridge's 50 ms watchdog
                 last = {k: int(bridge[k]) for k in last}
                 rss = {name: rss_mib(p.pid) for name, p in graph.procs.items()}
                 down = lowest < FELL_BELOW
@@ -130,18 +136,19 @@ def main() -> None:
                 was_down = down
                 lowest_overall = min(lowest_overall, lowest)
                 row = {"t_s": round(now - start, 1), "speed_mps": speed, "sim_steps": steps,
-                       "missed_deadline_fraction": missed / max(steps, 1), "lowest_base_height_m": lowest,
+                       "missed_deadline_fraction": missed / max(steps, 1), "watchdog_dampings": damped,
+                       "lowest_base_height_m": lowest,
                        "rss_mib": rss}
                 rows.append(row)
                 rss_text = " ".join(f"{k}={v:.0f}" if v is not None else f"{k}=gone" for k, v in rss.items())
                 print(f"{row['t_s']:>6.0f} {speed:>6.1f} {steps:>7} {100 * row['missed_deadline_fraction']:>8.1f}% "
-                      f"{lowest:>13.3f}  {rss_text}", flush=True)
+                      f"{damped:>7} {lowest:>13.3f}  {rss_text}", flush=True)
                 lowest = float("inf")
                 next_report += args.interval
         alive = graph.alive()
     finally:
         node.destroy_node()
-        rclpy.shutdown()
+        rclpy.try_shutdown()  # SIGTERM may have shut the context down already
         graph.stop()
     rss_start = rows[0]["rss_mib"] if rows else {}
     rss_end = rows[-1]["rss_mib"] if rows else {}
@@ -156,9 +163,11 @@ def main() -> None:
     print(json.dumps({
         "duration_s": rows[-1]["t_s"] if rows else 0.0, "missed_deadline_fraction": missed_total,
         "missed_deadline_fraction_by_interval": [r["missed_deadline_fraction"] for r in rows],
+        "watchdog_dampings_by_interval": [r["watchdog_dampings"] for r in rows],
         "falls": falls, "lowest_base_height_m": lowest_overall,
         "rss_start_mib": rss_start, "rss_end_mib": rss_end, "rss_growth_mib": growth,
         "all_nodes_alive": all(alive.values()),
+        "fifo_priorities": fifo, "dds_transports": args.dds_transports or "fastdds-default",
     }))
     if not all(alive.values()):
         print(f"nodes died: {[k for k, v in alive.items() if not v]} (logs in {graph.log_dir})", file=sys.stderr)

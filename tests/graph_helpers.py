@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import os
 import signal
@@ -163,3 +164,50 @@ def run_until(executor, watcher, graph: Graph, sim_time: float, wall_timeout: fl
     assert not dead, f"nodes died: {dead}\n" + "\n".join(graph.log(n)[-2000:] for n in dead)
     assert ok, (f"sim reached only {watcher.sim_time():.2f} s of {sim_time} s in {wall_timeout} s wall; "
                 f"last /diagnostics: {getattr(watcher, 'diagnostics', 'not recorded')}")
+
+
+# Scheduling experiments on realtime graphs (benchmarks/graph_realtime.py, benchmarks/soak.py);
+# why: docs/architecture.md, "Realtime on a small computer".
+FIFO_TARGETS = ("sim_bridge", "convex_mpc", "gait_policy", "probe")  # probe: the benchmark itself
+DDS_TRANSPORTS = ("DEFAULT", "UDPv4", "SHM", "LARGE_DATA")
+
+
+def add_scheduling_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--fifo", action="append", default=[], metavar="NODE=PRIORITY",
+                        help=f"run NODE ({', '.join(FIFO_TARGETS)}) at SCHED_FIFO PRIORITY 1-99 (repeatable)")
+    parser.add_argument("--dds-transports", choices=DDS_TRANSPORTS,
+                        help="Fast DDS builtin transports of every process (default: shared memory + UDP)")
+
+
+def scheduling_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, int]:
+    """{node: FIFO priority} from ``--fifo NODE=PRIORITY`` (a bad one ends the run with a clear
+    message); sets ``--dds-transports`` in the environment, which every node started later inherits."""
+    fifo = {}
+    for spec in args.fifo:
+        name, _, value = spec.partition("=")
+        if name not in FIFO_TARGETS:
+            parser.error(f"--fifo {spec!r}: NODE must be one of {', '.join(FIFO_TARGETS)}")
+        try:
+            priority = int(value)
+        except ValueError:
+            priority = 0
+        if not 1 <= priority <= 99:
+            parser.error(f"--fifo {spec!r}: PRIORITY must be an integer in [1, 99]")
+        fifo[name] = priority
+    if args.dds_transports:
+        os.environ["FASTDDS_BUILTIN_TRANSPORTS"] = args.dds_transports
+    return fifo
+
+
+def apply_fifo(graph: Graph, fifo: dict[str, int]) -> None:
+    """Right after ``start_stack``: each node's process at its priority while it still imports, before
+    it creates its DDS threads, so all its threads inherit it; the probe (this process) last, so no
+    node forked from it inherited its priority. Must run before this process calls rclpy.init."""
+    for name, priority in fifo.items():
+        try:
+            os.sched_setscheduler(0 if name == "probe" else graph.procs[name].pid, os.SCHED_FIFO,
+                                  os.sched_param(priority))
+        except PermissionError:
+            graph.stop()
+            raise SystemExit(f"--fifo: SCHED_FIFO {priority} is not permitted here "
+                             "(needs root, CAP_SYS_NICE or an rtprio limit)") from None
