@@ -12,7 +12,8 @@ nothing else, so it takes no CPU from the graph it measures):
 - the bridge's achieved step rate, and whether the robot stayed up (lowest base height);
 - each node's CPU use over the window, in cores (from /proc: where the 2 cores go).
 Goal of issue 6: 500 Hz held with under 1% missed deadlines for 60 s. Prints one line a second
-(the bridge's misses in that second, the controller's state and QP time), a table, then JSON.
+(the bridge's misses and watchdog dampings in that second, the controller's state, step and QP
+medians, MPC worker round trip and stopgap steps), a table, then JSON.
 
 Scheduling experiments, without editing code (docs/architecture.md, "Realtime on a small computer"):
 - ``--fifo sim_bridge=50`` (repeatable; ``probe`` is this process) puts a node at SCHED_FIFO right

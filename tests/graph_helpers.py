@@ -201,8 +201,9 @@ def scheduling_from_args(parser: argparse.ArgumentParser, args: argparse.Namespa
 
 def apply_fifo(graph: Graph, fifo: dict[str, int]) -> None:
     """Right after ``start_stack``: each node's process at its priority while it still imports, before
-    it creates its DDS threads, so all its threads inherit it; the probe (this process) last, so no
-    node forked from it inherited its priority. Must run before this process calls rclpy.init."""
+    it creates its DDS threads, so all its threads inherit it. The probe (this process) is set here
+    too, after the nodes were started, so none of them inherited its priority. Must run before this
+    process calls rclpy.init."""
     for name, priority in fifo.items():
         try:
             os.sched_setscheduler(0 if name == "probe" else graph.procs[name].pid, os.SCHED_FIFO,

@@ -198,7 +198,7 @@ class LocomotionController:
         self._solved_contacts = np.zeros(NUM_LEGS, dtype=bool)  # of the newest problem handed to a solver
         self._plan_contacts = np.zeros(NUM_LEGS, dtype=bool)  # ... and of last_solution
         self.stopgap_steps = 0  # steps that applied static forces while a solve for new contacts ran
-        self.plan_delay_steps = 0  # control steps from handing the adopted solve to the worker to adopting it
+        self.plan_delay_steps = 0  # control steps from handing the adopted solve to a solver to adopting it
         self._position_error = np.zeros(2)  # yaw-aligned frame [m]
         self._yaw_target: float | None = None
         self._was_swing = np.zeros(NUM_LEGS, dtype=bool)
@@ -251,8 +251,7 @@ class LocomotionController:
         worker = self._worker
         finished = worker.poll() if worker is not None else None
         if finished is not None:
-            self._adopt(finished, self._solved_contacts)
-            self.plan_delay_steps = self._steps_since_solve + 1  # submitted that many steps ago
+            self._adopt(finished, self._solved_contacts, self._steps_since_solve + 1)  # submitted that long ago
         due = (self.last_solution is None or self._steps_since_solve + 1 >= cfg.mpc_period_steps
                or not np.array_equal(plan[0], self._solved_contacts))
         if due and not (worker is not None and worker.pending):
@@ -262,7 +261,7 @@ class LocomotionController:
             if worker is not None and self.last_solution is not None and not self.mpc.injected_failures:
                 worker.submit(*problem)
             else:
-                self._adopt(self.mpc.solve(*problem), plan[0])
+                self._adopt(self.mpc.solve(*problem), plan[0], 0)
             self._steps_since_solve = 0
             self._solved_contacts = plan[0].copy()
         else:
@@ -291,7 +290,8 @@ class LocomotionController:
         if swing.any():
             targets = feet_base.copy()
             v_base = rot.T @ np.asarray(obs.base_velocity, dtype=float)
-            targets[swing] = self._swing_targets(swing, v_base, float(obs.angular_velocity[2]), command)
+            targets[swing] = self._swing_targets(swing, v_base, float(obs.angular_velocity[2]), v_cmd,
+                                                 command.yaw_rate)
             joints = np.repeat(swing, 3)
             out.position[joints] = inverse_kinematics(robot, targets)[joints]
             out.kp[joints] = robot.joint_kp[joints]
@@ -303,20 +303,21 @@ class LocomotionController:
             return JointCommand.hold(robot, q_measured if np.all(np.isfinite(q_measured)) else None)
         return out
 
-    def _adopt(self, solution: MpcSolution, contacts: np.ndarray) -> None:
+    def _adopt(self, solution: MpcSolution, contacts: np.ndarray, delay_steps: int) -> None:
         self.last_solution = solution
         self._plan_contacts = contacts.copy()
+        self.plan_delay_steps = delay_steps
         self.mpc_fallbacks += solution.fallback
         self.solved_this_step = True
 
-    def _swing_targets(self, legs: np.ndarray, v_base: np.ndarray, yaw_rate: float,
-                       command: VelocityCommand) -> np.ndarray:
+    def _swing_targets(self, legs: np.ndarray, v_base: np.ndarray, yaw_rate: float, v_cmd: np.ndarray,
+                       yaw_rate_cmd: float) -> np.ndarray:
         """Foot targets (n, 3), base frame, of the ``legs`` (mask) along the lift-off -> mid-air ->
-        Raibert landing curve."""
+        Raibert landing curve; ``v_cmd`` [m/s] and ``yaw_rate_cmd`` [rad/s] are the command."""
         cfg = self.config
         tangent = self._yaw_tangent[legs]
         hip_velocity = v_base[:2] + yaw_rate * tangent
-        desired = np.array([command.vx, command.vy]) + command.yaw_rate * tangent
+        desired = v_cmd + yaw_rate_cmd * tangent
         offset = hip_velocity * (0.5 * self.gait.stance_duration) + cfg.raibert_feedback_gain * (hip_velocity - desired)
         clip = self._raibert_clip
         landing = self._neutral[legs]  # a copy (boolean indexing)

@@ -102,7 +102,7 @@ class MpcWorkerProcess:
     def close(self) -> None:
         try:
             self._conn.send(None)
-        except (BrokenPipeError, OSError):
+        except OSError:  # the child is gone already
             pass
         self._conn.close()
         try:

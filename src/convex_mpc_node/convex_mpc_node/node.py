@@ -86,7 +86,7 @@ class ConvexMpcNode(Node):
         self._odom_ns = -1
         self._last_sensor_wall = float("-inf")
         self._solve_times: deque[float] = deque(maxlen=500)
-        self._plan_delays: deque[float] = deque(maxlen=500)  # [s] MPC worker round trips, in control steps
+        self._plan_delays: deque[float] = deque(maxlen=500)  # [s] solve hand-over to adoption, whole steps
         self._step_times: deque[float] = deque(maxlen=500)
         self._powers: deque[float] = deque(maxlen=500)
         self._speeds: deque[float] = deque(maxlen=500)
