@@ -10,6 +10,7 @@ from convex_mpc_node.node import ConvexMpcNode
 from nav_msgs.msg import Odometry
 
 from a1_sim_bridge import conversions as cv
+from a1_sim_bridge import wire
 
 STEP_NS = 2_000_000
 
@@ -27,7 +28,7 @@ def readings():
 def node(rclpy_context):
     n = ConvexMpcNode(context=rclpy_context)
     n.sent = []  # stamps of the motor commands it published
-    n.pub_command.publish = lambda msg: n.sent.append(cv.ns_from_stamp(msg.header.stamp))
+    n.pub_command.publish = lambda msg: n.sent.append(wire.decode_motor_command(msg)[1])
     yield n
     n.destroy_node()
 
@@ -95,7 +96,7 @@ def test_a_step_offered_again_gets_the_same_command_without_a_second_control_ste
     node.pub_command.publish = sent.append
     steps = node._steps
     sensors(node, readings, 2)
-    assert [cv.ns_from_stamp(m.header.stamp) for m in sent] == [2 * STEP_NS] and node._steps == steps
+    assert [wire.decode_motor_command(m)[1] for m in sent] == [2 * STEP_NS] and node._steps == steps
     assert sent[0] is node._last_command
 
 
@@ -120,7 +121,7 @@ def test_estimate_after_command_controls_on_the_previous_estimate_then_updates(r
     n = ConvexMpcNode(context=rclpy_context, parameter_overrides=[
         Parameter("embedded_estimator", value=True), Parameter("estimate_after_command", value=True)])
     events = []
-    n.pub_command.publish = lambda msg: events.append(("command", cv.ns_from_stamp(msg.header.stamp)))
+    n.pub_command.publish = lambda msg: events.append(("command", wire.decode_motor_command(msg)[1]))
     n.pub_odom.publish = lambda msg: events.append(("odom", cv.ns_from_stamp(msg.header.stamp)))
     velocities = []
     control = n._control

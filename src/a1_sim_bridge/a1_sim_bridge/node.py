@@ -38,6 +38,7 @@ from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import SetBool, Trigger
 
 from a1_sim_bridge import conversions as cv
+from a1_sim_bridge import wire
 from a1_sim_bridge.sim import A1Sim, SimConfig
 from gait_msgs.msg import FootContacts, MotorCommand
 
@@ -67,6 +68,7 @@ class SimBridgeNode(Node):
         self.publish_ground_truth = bool(params["publish_ground_truth"])
         self.dt_ns = round(self.sim.config.time_step * 1e9)
         self.joint_names = list(self.sim.robot.joint_names)
+        self.encoders = wire.SensorEncoders(self.joint_names, cv.BASE_FRAME, cv.IMU_FRAME)
 
         self.pub_joints = self.create_publisher(JointState, "/joint_states", CONTROL_QOS)
         self.pub_imu = self.create_publisher(Imu, "/imu/data", CONTROL_QOS)
@@ -74,7 +76,7 @@ class SimBridgeNode(Node):
         self.pub_clock = self.create_publisher(Clock, "/clock", CONTROL_QOS)
         self.pub_truth = self.create_publisher(Odometry, "/sim/ground_truth/odom", CONTROL_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS)
+        self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS, raw=True)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -106,15 +108,16 @@ class SimBridgeNode(Node):
         self._thread.start()
 
     # --- callbacks (executor thread) ---------------------------------------------------------
-    def _on_command(self, msg: MotorCommand) -> None:
+    def _on_command(self, raw: bytes) -> None:
+        """A /motor_command as its CDR bytes (see wire.py: this runs 500 times a second)."""
         with self._lock:
             # Invalid commands are rejected (and counted) whatever their stamp.
-            valid = self.watchdog.check(cv.joint_command_from_msg(msg))
+            command, stamp_ns = wire.decode_motor_command(raw)
+            valid = self.watchdog.check(command)
             if valid is None:
                 self.get_logger().warning(f"rejected /motor_command: {self.watchdog.last_error}",
                                           throttle_duration_sec=1.0)
                 return
-            stamp_ns = cv.ns_from_stamp(msg.header.stamp)
             published = self._published_at.pop(stamp_ns, None)  # the first command for a step counts
             if published is not None:
                 self._latencies.append(time.monotonic() - published)
@@ -235,11 +238,10 @@ class SimBridgeNode(Node):
         them counts against a realtime controller's 2 ms), then /clock and the ground truth, only
         when someone listens: at 500 Hz every message costs CPU a small computer does not have."""
         stamp_ns = self.sim.steps * self.dt_ns
-        stamp = cv.stamp_from_ns(stamp_ns)
-        self.pub_imu.publish(cv.imu_msg(readings, stamp))
-        self.pub_contacts.publish(cv.foot_contacts_msg(readings, stamp))
+        joints, imu, contacts = self.encoders.encode(readings, stamp_ns)  # as bytes: see wire.py
+        self.pub_imu.publish(imu)
+        self.pub_contacts.publish(contacts)
         # Joint states last: in lockstep a controller may take it as "this step's sensors are out".
-        joints = cv.joint_state_msg(readings, stamp, self.joint_names)
         with self._lock:  # before publishing: a fast answer must find its step
             self._published_at[stamp_ns] = time.monotonic()
             while len(self._published_at) > 50:  # 0.1 s: an answer later than that is no answer
@@ -247,13 +249,13 @@ class SimBridgeNode(Node):
         self.pub_joints.publish(joints)
         self._published += 1
         if self.pub_clock.get_subscription_count():
-            self.pub_clock.publish(Clock(clock=stamp))
+            self.pub_clock.publish(Clock(clock=cv.stamp_from_ns(stamp_ns)))
         if self.publish_ground_truth:
             truth = self.sim.ground_truth()
             with self._lock:
                 self._lowest_base_height = min(self._lowest_base_height, float(truth.base_position[2]))
             if self.pub_truth.get_subscription_count():
-                self.pub_truth.publish(cv.ground_truth_msg(truth, stamp))
+                self.pub_truth.publish(cv.ground_truth_msg(truth, cv.stamp_from_ns(stamp_ns)))
 
     def _publish_diagnostics(self) -> None:
         with self._lock:

@@ -29,7 +29,7 @@ import numpy as np
 from a1_common.config import ConfigError, parameter_defaults, require_integer
 from a1_common.kinematics import quat_to_matrix
 from a1_common.node_support import coerce_parameter, declare_parameters, run_node
-from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp
+from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Twist, TwistStamped
@@ -43,6 +43,7 @@ from state_estimator_node.node import OdometryFrontend
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
+from a1_sim_bridge import wire
 from convex_mpc_node.controller import (
     LocomotionController,
     Observation,
@@ -108,7 +109,8 @@ class ConvexMpcNode(Node):
         self._on_backup = False
         self._backup_sample: tuple[int, np.ndarray] | None = None  # (stamp, velocity) of its last estimate
         self._controlled_ns = -1  # the last step a command was sent for
-        self._last_command: MotorCommand | None = None  # ... and that command
+        self._last_command: bytes | None = None  # ... and that command (CDR, see a1_sim_bridge.wire)
+        self._command_encoder = wire.MotorCommandEncoder()
 
         self.pub_command = self.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
         self.pub_state = self.create_publisher(GaitState, "/gait/state", CONTROL_QOS)
@@ -118,10 +120,14 @@ class ConvexMpcNode(Node):
         else:
             self.create_subscription(Twist, "/cmd_vel", self._on_cmd_vel, COMMAND_QOS)
         self.create_subscription(GaitParamsMsg, "/gait/params", self._on_gait_params, COMMAND_QOS)
-        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
-        self.create_subscription(Imu, "/imu/data", lambda m: self._on_sensor(self._imu, m), CONTROL_QOS)
-        self.create_subscription(FootContacts, "/foot_contacts", lambda m: self._on_sensor(self._contacts, m),
-                                 CONTROL_QOS)
+        # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_sim_bridge.wire).
+        for msg_type, topic, decode, handler in (
+                (JointState, "/joint_states", wire.JointStateDecoder(), self._on_joints),
+                (Imu, "/imu/data", wire.decode_imu, lambda m: self._on_sensor(self._imu, m)),
+                (FootContacts, "/foot_contacts", wire.decode_foot_contacts,
+                 lambda m: self._on_sensor(self._contacts, m))):
+            self.create_subscription(msg_type, topic, wire.decoding(decode, handler, self._malformed), CONTROL_QOS,
+                                     raw=True)
         if self.frontend is None:
             self.create_subscription(Odometry, "/odom", self._on_odom, CONTROL_QOS)
         else:
@@ -147,6 +153,9 @@ class ConvexMpcNode(Node):
         buffer[ns_from_stamp(msg.header.stamp)] = msg
         while len(buffer) > 50:  # keep the last 0.1 s of sensor steps
             del buffer[min(buffer)]
+
+    def _malformed(self, text: str) -> None:
+        self.get_logger().error(text, throttle_duration_sec=1.0)
 
     def _on_cmd_vel(self, twist: Twist) -> None:
         if not self.supervisor.on_cmd_vel(twist.linear.x, twist.linear.y, twist.angular.z, self._now()):
@@ -306,7 +315,7 @@ class ConvexMpcNode(Node):
                           np.asarray(contacts.contact, dtype=bool), velocity)
         result = self.supervisor.step(stamp_ns * 1e-9, obs, velocity_fresh=velocity_world is not None,
                                       backup_velocity=velocity_world is None and backup_velocity is not None)
-        self._last_command = motor_command_msg(result.command, joints.header.stamp)
+        self._last_command = self._command_encoder.encode(result.command, stamp_ns)
         self.pub_command.publish(self._last_command)
         elapsed = time.perf_counter() - t0
         self._steps += 1

@@ -21,6 +21,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 
+from a1_sim_bridge import wire
 from gait_msgs.msg import FootContacts
 from state_estimator_node.estimator import Estimate, EstimatorConfig, SensorSample, VelocityEstimator
 
@@ -115,11 +116,17 @@ class StateEstimatorNode(Node):
         self._published = 0
         self.pub_odom = self.create_publisher(Odometry, "/odom", CONTROL_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(Imu, "/imu/data", lambda m: setattr(self, "_imu", m), CONTROL_QOS)
-        self.create_subscription(FootContacts, "/foot_contacts", lambda m: setattr(self, "_contacts", m),
-                                 CONTROL_QOS)
-        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
+        # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_sim_bridge.wire).
+        for msg_type, topic, decode, handler in (
+                (Imu, "/imu/data", wire.decode_imu, lambda m: setattr(self, "_imu", m)),
+                (FootContacts, "/foot_contacts", wire.decode_foot_contacts, lambda m: setattr(self, "_contacts", m)),
+                (JointState, "/joint_states", wire.JointStateDecoder(), self._on_joints)):
+            self.create_subscription(msg_type, topic, wire.decoding(decode, handler, self._malformed), CONTROL_QOS,
+                                     raw=True)
         self.create_timer(1.0, self._publish_diagnostics)
+
+    def _malformed(self, text: str) -> None:
+        self.get_logger().error(text, throttle_duration_sec=1.0)
 
     def _on_joints(self, msg: JointState) -> None:
         if self._imu is None or self._contacts is None:

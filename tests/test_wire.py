@@ -1,0 +1,92 @@
+"""The byte-level codecs of the 500 Hz messages (a1_sim_bridge.wire) against rclpy's serializer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from a1_common.command import JointCommand, MotorMode
+from a1_sim_bridge.sim import SensorReadings
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import Imu, JointState
+
+from a1_sim_bridge import conversions as cv
+from a1_sim_bridge import wire
+from gait_msgs.msg import FootContacts, MotorCommand
+
+NAMES = [f"{leg}_{joint}_joint" for leg in ("FR", "FL", "RR", "RL") for joint in ("hip", "thigh", "calf")]
+STAMP_NS = 12_345_678_902
+
+
+@pytest.fixture
+def readings() -> SensorReadings:
+    rng = np.random.default_rng(3)
+    return SensorReadings(
+        time=STAMP_NS * 1e-9, joint_position=rng.normal(size=12), joint_velocity=rng.normal(size=12),
+        joint_torque=rng.normal(size=12), imu_orientation=rng.normal(size=4), imu_angular_velocity=rng.normal(size=3),
+        imu_linear_acceleration=rng.normal(size=3), foot_contact=np.array([True, False, False, True]),
+        foot_force=rng.normal(size=4))
+
+
+def test_encoders_give_what_the_ordinary_messages_give(readings: SensorReadings) -> None:
+    stamp = cv.stamp_from_ns(STAMP_NS)
+    for _ in range(2):  # the second encode reuses the template
+        joints = deserialize_message(wire.JointStateEncoder(NAMES, cv.BASE_FRAME).encode(
+            STAMP_NS, readings.joint_position, readings.joint_velocity, readings.joint_torque), JointState)
+        assert joints == cv.joint_state_msg(readings, stamp, NAMES)
+        imu = deserialize_message(wire.ImuEncoder(cv.IMU_FRAME).encode(
+            STAMP_NS, readings.imu_orientation, readings.imu_angular_velocity, readings.imu_linear_acceleration), Imu)
+        assert imu == cv.imu_msg(readings, stamp)
+        contacts = deserialize_message(wire.FootContactsEncoder(cv.BASE_FRAME).encode(
+            STAMP_NS, readings.foot_contact, readings.foot_force), FootContacts)
+        assert contacts == cv.foot_contacts_msg(readings, stamp)
+
+
+def test_motor_command_both_ways() -> None:
+    rng = np.random.default_rng(4)
+    command = JointCommand(MotorMode.HYBRID, *(rng.normal(size=12) for _ in range(5)))
+    encoder = wire.MotorCommandEncoder()
+    msg = deserialize_message(encoder.encode(command, STAMP_NS), MotorCommand)
+    assert msg == cv.motor_command_msg(command, cv.stamp_from_ns(STAMP_NS))
+    damping = encoder.encode(JointCommand.damping(), STAMP_NS + 2_000_000)
+    decoded, stamp_ns = wire.decode_motor_command(serialize_message(cv.motor_command_msg(command, cv.stamp_from_ns(
+        STAMP_NS))))
+    assert stamp_ns == STAMP_NS and decoded.mode == MotorMode.HYBRID
+    for field in ("position", "velocity", "kp", "kd", "torque"):
+        np.testing.assert_array_equal(getattr(decoded, field), getattr(command, field))
+    decoded, stamp_ns = wire.decode_motor_command(damping)
+    assert (decoded.mode, stamp_ns) == (MotorMode.DAMPING, STAMP_NS + 2_000_000)
+
+
+def test_decoders_read_what_rclpy_serializes(readings: SensorReadings) -> None:
+    stamp = cv.stamp_from_ns(STAMP_NS)
+    decode_joints = wire.JointStateDecoder()
+    for frame in ("", "base_link", "a_longer_frame_id"):  # other bridges may name frames otherwise
+        msg = cv.joint_state_msg(readings, stamp, NAMES)
+        msg.header.frame_id = frame
+        joints = decode_joints(serialize_message(msg))
+        assert (joints.header.stamp, joints.header.frame_id, joints.name) == (stamp, frame, NAMES)
+        np.testing.assert_array_equal(joints.position, readings.joint_position)
+        np.testing.assert_array_equal(joints.velocity, readings.joint_velocity)
+        np.testing.assert_array_equal(joints.effort, readings.joint_torque)
+    other = JointState(name=["a", "bc"], position=[1.0, 2.0])  # other names, no velocity or effort
+    joints = decode_joints(serialize_message(other))
+    assert joints.name == ["a", "bc"] and joints.velocity.shape == (0,)
+    imu = wire.decode_imu(serialize_message(cv.imu_msg(readings, stamp)))
+    assert imu.header.stamp == stamp
+    np.testing.assert_array_equal(imu.orientation, readings.imu_orientation)
+    np.testing.assert_array_equal(imu.angular_velocity, readings.imu_angular_velocity)
+    np.testing.assert_array_equal(imu.linear_acceleration, readings.imu_linear_acceleration)
+    contacts = wire.decode_foot_contacts(serialize_message(cv.foot_contacts_msg(readings, stamp)))
+    np.testing.assert_array_equal(contacts.contact, readings.foot_contact)
+    np.testing.assert_array_equal(contacts.normal_force, readings.foot_force)
+
+
+@pytest.mark.parametrize(("decode", "msg"), [
+    (wire.JointStateDecoder(), JointState(name=NAMES, position=[0.0] * 12)), (wire.decode_imu, Imu()),
+    (wire.decode_foot_contacts, FootContacts()), (wire.decode_motor_command, MotorCommand())])
+def test_truncated_or_foreign_bytes_are_a_clear_error(decode, msg) -> None:
+    whole = serialize_message(msg)
+    with pytest.raises(ValueError, match="truncated"):
+        decode(whole[:40])
+    with pytest.raises(ValueError, match="not little-endian CDR"):
+        decode(b"\x00\x00\x00\x00" + whole[4:])
