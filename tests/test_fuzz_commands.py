@@ -15,14 +15,21 @@ import pytest
 from a1_common.command import MAX_FEEDFORWARD_TORQUE, MAX_KD, MAX_KP, CommandWatchdog, JointCommand, MotorMode
 from a1_common.config import ConfigError
 from a1_common.robot import a1
-from a1_sim_bridge.conversions import joint_command_from_msg, motor_command_msg, stamp_from_ns
+from a1_sim_bridge.conversions import motor_command_msg, stamp_from_ns
 from convex_mpc_node.controller import LocomotionController, Observation
 from convex_mpc_node.gait import TWO_PI, GaitParams, load_hand_tuned_gaits
 from convex_mpc_node.supervisor import ControllerSupervisor, SupervisorConfig
 from hypothesis import example, given
 from hypothesis import strategies as st
+from rclpy.serialization import serialize_message
 
+from a1_sim_bridge import wire
 from gait_msgs.msg import MotorCommand
+
+
+def decoded_command(msg: MotorCommand) -> JointCommand:
+    """The command a bridge applies for ``msg``: decoded from its bytes, as the bridges do."""
+    return wire.decode_motor_command(serialize_message(msg))[0]
 
 ROBOT = a1()
 GAITS = load_hand_tuned_gaits()
@@ -58,7 +65,7 @@ def test_motor_command_message_is_validated_before_the_motors(fuzz_cases, mode, 
     msg.mode = mode if 0 <= mode <= 255 else 0
     for name, v in values.items():
         setattr(msg, name, v)
-    command = joint_command_from_msg(msg)
+    command = decoded_command(msg)
     command.mode = mode  # also modes a uint8 cannot hold (a bridge may be fed from elsewhere)
     watchdog = CommandWatchdog(0.05)
     accepted = watchdog.offer(command, now=0.0)
@@ -97,7 +104,7 @@ def test_watchdog_only_ever_hands_out_valid_commands_or_damping(fuzz_cases, even
 
 def test_motor_command_round_trip_keeps_a_valid_command():
     command = JointCommand.hold(ROBOT)
-    back = joint_command_from_msg(motor_command_msg(command, stamp_from_ns(2_000_000)))
+    back = decoded_command(motor_command_msg(command, stamp_from_ns(2_000_000)))
     np.testing.assert_array_equal(back.validated().position, command.position)
 
 

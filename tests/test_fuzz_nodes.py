@@ -16,9 +16,9 @@ import math
 import numpy as np
 import pytest
 import rclpy
-from a1_common.command import MotorMode
+from a1_common.command import JointCommand, MotorMode
 from a1_common.robot import a1
-from a1_sim_bridge.conversions import joint_command_from_msg, ns_from_stamp, stamp_from_ns
+from a1_sim_bridge.conversions import ns_from_stamp, stamp_from_ns
 from a1_sim_bridge.node import CONTROL_QOS, SimBridgeNode
 from convex_mpc_node.gait import GaitParams
 from convex_mpc_node.node import ConvexMpcNode
@@ -35,13 +35,20 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from ros_helpers import spin_until
 from sensor_msgs.msg import Imu, JointState
 from state_estimator_node.node import StateEstimatorNode
 from std_srvs.srv import SetBool
 
+from a1_sim_bridge import wire
 from gait_msgs.msg import FootContacts, MotorCommand
 from gait_msgs.msg import GaitParams as GaitParamsMsg
+
+
+def decoded_command(msg: MotorCommand) -> JointCommand:
+    """The command a bridge applies for ``msg``: decoded from its bytes, as the bridges do."""
+    return wire.decode_motor_command(serialize_message(msg))[0]
 
 pytestmark = pytest.mark.ros
 # Examples that exchange DDS messages cost milliseconds each (more on a loaded machine): a third of
@@ -161,7 +168,7 @@ class SensorDriver:
 
 
 def assert_motor_safe(msg: MotorCommand) -> None:
-    joint_command_from_msg(msg).validated()  # raises CommandError on NaN/inf or gains out of range
+    decoded_command(msg).validated()  # raises CommandError on NaN/inf or gains out of range
 
 
 @pytest.fixture(scope="class")  # one graph alive at a time: no cross-talk
@@ -462,7 +469,7 @@ class TestSimBridgeNode:
 
         assert graph.spin_until(handled, timeout_s=5.0)
         try:
-            joint_command_from_msg(msg).validated()
+            decoded_command(msg).validated()
             valid = True
         except ValueError:
             valid = False

@@ -1,7 +1,7 @@
 """hw_bridge node: the Unitree A1 (or the virtual A1) behind the sim bridge's topics.
 
 Publishes /joint_states, /imu/data, /foot_contacts (same messages, frames and QoS as the sim
-bridge, built by a1_sim_bridge.conversions) and /diagnostics; subscribes /motor_command, and
+bridge, encoded by a1_sim_bridge.wire) and /diagnostics; subscribes /motor_command, and
 /gait/state for the contact recalibration. In lockstep mode (virtual A1 only) it also publishes
 /clock from the robot's tick. Everything else is in a1_hw_bridge.bridge (no rclpy).
 """
@@ -22,6 +22,7 @@ from sensor_msgs.msg import Imu, JointState
 
 from a1_hw_bridge.bridge import BridgeConfig, HardwareBridge, Phase
 from a1_sim_bridge import conversions as cv
+from a1_sim_bridge import wire
 from gait_msgs.msg import FootContacts, GaitState, MotorCommand
 
 NO_STATE_ERROR_AGE = 0.5  # [s] without a valid state from the robot -> diagnostics ERROR
@@ -33,6 +34,7 @@ class HardwareBridgeNode(Node):
         super().__init__("hw_bridge", **node_kwargs)
         config = BridgeConfig(**declare_parameters(self, parameter_defaults(BridgeConfig()))).validated()
         self.joint_names = list(a1().joint_names)
+        self.encoders = wire.SensorEncoders(self.joint_names, cv.BASE_FRAME, cv.IMU_FRAME)
         self.pub_joints = self.create_publisher(JointState, "/joint_states", CONTROL_QOS)
         self.pub_imu = self.create_publisher(Imu, "/imu/data", CONTROL_QOS)
         self.pub_contacts = self.create_publisher(FootContacts, "/foot_contacts", CONTROL_QOS)
@@ -42,7 +44,7 @@ class HardwareBridgeNode(Node):
         self.bridge = HardwareBridge(
             config, publish=self._publish, clock_ns=lambda: self.get_clock().now().nanoseconds,
             publish_clock=self._publish_clock if self.pub_clock is not None else None, on_failure=self._on_failure)
-        self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS)
+        self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS, raw=True)
         if config.swing_recalibration:
             self.create_subscription(GaitState, "/gait/state", self._on_gait_state, CONTROL_QOS)
         self.add_on_set_parameters_callback(refuse_runtime_changes)
@@ -65,8 +67,9 @@ class HardwareBridgeNode(Node):
         self.get_logger().fatal(f"A1 link thread failed, motors sent to damping, stopping the node: {exc!r}")
         self.context.try_shutdown()  # ends spin() in main(), which exits non-zero
 
-    def _on_command(self, msg: MotorCommand) -> None:
-        result = self.bridge.offer_command(cv.joint_command_from_msg(msg), cv.ns_from_stamp(msg.header.stamp))
+    def _on_command(self, raw: bytes) -> None:
+        """A /motor_command as its CDR bytes (a1_sim_bridge.wire: this runs 500 times a second)."""
+        result = self.bridge.offer_command(*wire.decode_motor_command(raw))
         if result == "rejected":
             self.get_logger().warning(f"rejected /motor_command: {self.bridge.logic.watchdog.last_error}",
                                       throttle_duration_sec=1.0)
@@ -75,11 +78,11 @@ class HardwareBridgeNode(Node):
         self.bridge.observe_gait_state(cv.ns_from_stamp(msg.header.stamp), np.asarray(msg.desired_contact))
 
     def _publish(self, readings: SensorReadings, stamp_ns: int) -> None:
-        stamp = cv.stamp_from_ns(stamp_ns)
-        self.pub_imu.publish(cv.imu_msg(readings, stamp))
-        self.pub_contacts.publish(cv.foot_contacts_msg(readings, stamp))
+        joints, imu, contacts = self.encoders.encode(readings, stamp_ns)
+        self.pub_imu.publish(imu)
+        self.pub_contacts.publish(contacts)
         # Joint states last: the controller takes them as "this step's sensors are out".
-        self.pub_joints.publish(cv.joint_state_msg(readings, stamp, self.joint_names))
+        self.pub_joints.publish(joints)
 
     def _publish_clock(self, stamp_ns: int) -> None:
         self.pub_clock.publish(Clock(clock=cv.stamp_from_ns(stamp_ns)))

@@ -1,7 +1,8 @@
 """Conversions between the robot-side data classes and ROS messages.
 
-Shared by every bridge (simulation or hardware) so that they publish byte-for-byte the same
-contract. No rclpy import: messages only.
+The bridges and the controller send the 500 Hz messages as bytes (a1_sim_bridge.wire); these
+builders make the same messages as rosidl objects, for the slower nodes, the tests and as the
+reference wire.py is checked against. No rclpy import: messages only.
 """
 
 from __future__ import annotations
@@ -75,12 +76,6 @@ def ground_truth_msg(gt: GroundTruth, stamp: Time) -> Odometry:
     _fill(msg.twist.twist.linear, gt.base_linear_velocity_body)
     _fill(msg.twist.twist.angular, gt.base_angular_velocity_body)
     return msg
-
-
-def joint_command_from_msg(msg: MotorCommand) -> JointCommand:
-    """Unvalidated: the bridge's CommandWatchdog validates and rejects."""
-    return JointCommand(mode=msg.mode, position=np.asarray(msg.position), velocity=np.asarray(msg.velocity),
-                        kp=np.asarray(msg.kp), kd=np.asarray(msg.kd), torque=np.asarray(msg.torque))
 
 
 def motor_command_msg(cmd: JointCommand, stamp: Time) -> MotorCommand:
