@@ -90,3 +90,32 @@ def test_truncated_or_foreign_bytes_are_a_clear_error(decode, msg) -> None:
         decode(whole[:40])
     with pytest.raises(ValueError, match="not little-endian CDR"):
         decode(b"\x00\x00\x00\x00" + whole[4:])
+
+
+class _FakeNode:
+    """Just what subscribe_sensors uses of an rclpy Node: the subscriptions it makes, and the log."""
+
+    def __init__(self) -> None:
+        self.callbacks: dict[str, object] = {}
+        self.errors: list[str] = []
+
+    def create_subscription(self, msg_type, topic, callback, qos, raw=False):
+        assert raw, f"{topic} must be taken as bytes"
+        self.callbacks[topic] = callback
+
+    def get_logger(self):
+        return self
+
+    def error(self, text: str, throttle_duration_sec: float = 0.0) -> None:
+        self.errors.append(text)
+
+
+def test_sensor_subscriptions_decode_and_drop_malformed_messages_loudly(readings: SensorReadings) -> None:
+    node, got = _FakeNode(), []
+    wire.subscribe_sensors(node, None, on_joints=got.append, on_imu=got.append, on_contacts=got.append)
+    assert list(node.callbacks) == ["/imu/data", "/foot_contacts", "/joint_states"]  # joint states last
+    imu = serialize_message(cv.imu_msg(readings, cv.stamp_from_ns(STAMP_NS)))
+    node.callbacks["/imu/data"](imu[:30])
+    assert got == [] and len(node.errors) == 1 and "sensor_msgs/Imu: truncated" in node.errors[0]
+    node.callbacks["/imu/data"](imu)
+    assert len(got) == 1 and got[0].header.stamp == cv.stamp_from_ns(STAMP_NS)

@@ -83,7 +83,8 @@ class CdrReader:
             raise ValueError(f"{what}: not little-endian CDR (encapsulation {bytes(buffer[:_HEADER]).hex()})")
         self.buffer, self.pos, self.what = buffer, _HEADER, what
 
-    def _take(self, size: int, align: int) -> int:
+    def take(self, size: int, align: int) -> int:
+        """Step over ``size`` bytes aligned to ``align``; returns where they start."""
         start = self.pos + (-(self.pos - _HEADER) % align)
         if start + size > len(self.buffer):
             raise ValueError(f"{self.what}: truncated ({len(self.buffer)} bytes)")
@@ -91,16 +92,16 @@ class CdrReader:
         return start
 
     def u32(self) -> int:
-        return _U32.unpack_from(self.buffer, self._take(4, 4))[0]
+        return _U32.unpack_from(self.buffer, self.take(4, 4))[0]
 
     def stamp(self) -> Time:
-        sec, nanosec = _STAMP.unpack_from(self.buffer, self._take(8, 4))
+        sec, nanosec = _STAMP.unpack_from(self.buffer, self.take(8, 4))
         return Time(sec=sec, nanosec=nanosec)
 
     def string_bytes(self) -> bytes:
         """A string's bytes without its terminating NUL (the length counts the NUL)."""
         length = self.u32()
-        start = self._take(length, 1)
+        start = self.take(length, 1)
         return bytes(self.buffer[start:start + max(length - 1, 0)])
 
     def header(self) -> Header:
@@ -116,13 +117,13 @@ class CdrReader:
     def f64(self, count: int) -> np.ndarray:
         if count == 0:  # no element, no alignment padding
             return np.empty(0)
-        return np.frombuffer(self.buffer, "<f8", count, self._take(8 * count, 8)).copy()
+        return np.frombuffer(self.buffer, "<f8", count, self.take(8 * count, 8)).copy()
 
     def f64_sequence(self) -> np.ndarray:
         return self.f64(self.u32())
 
     def u8(self, count: int) -> np.ndarray:
-        return np.frombuffer(self.buffer, np.uint8, count, self._take(count, 1)).copy()
+        return np.frombuffer(self.buffer, np.uint8, count, self.take(count, 1)).copy()
 
 
 class _Template:
@@ -156,8 +157,8 @@ class JointStateEncoder:
         reader.skip_string_sequence()
         views = []
         for _ in range(3):
-            reader.f64_sequence()
-            views.append(self._template.f64_view(reader.pos - 8 * n, n))
+            reader.u32()  # the sequence's length, n
+            views.append(self._template.f64_view(reader.take(8 * n, 8), n))
         self._position, self._velocity, self._effort = views
 
     def encode(self, stamp_ns: int, position: np.ndarray, velocity: np.ndarray, effort: np.ndarray) -> bytes:
@@ -175,7 +176,7 @@ class ImuEncoder:
         self._template = _Template(_with_frame(Imu(), frame_id))
         reader = CdrReader(self._template.buffer, "Imu template")
         reader.header()
-        start = reader.pos + (-(reader.pos - _HEADER) % 8)
+        start = reader.take(8 * 37, 8)  # orientation, its covariance, gyro, its covariance, accel, its cov.
         self._orientation = self._template.f64_view(start, 4)
         self._angular_velocity = self._template.f64_view(start + 8 * 13, 3)
         self._linear_acceleration = self._template.f64_view(start + 8 * 25, 3)
@@ -195,10 +196,8 @@ class FootContactsEncoder:
         self._template = _Template(_with_frame(FootContacts(), frame_id))
         reader = CdrReader(self._template.buffer, "FootContacts template")
         reader.header()
-        reader.u8(4)
-        self._contact = np.frombuffer(self._template.buffer, np.uint8, 4, reader.pos - 4)
-        reader.f64(4)
-        self._normal_force = self._template.f64_view(reader.pos - 32, 4)
+        self._contact = np.frombuffer(self._template.buffer, np.uint8, 4, reader.take(4, 1))
+        self._normal_force = self._template.f64_view(reader.take(32, 8), 4)
 
     def encode(self, stamp_ns: int, contact: np.ndarray, normal_force: np.ndarray) -> bytes:
         self._contact[:] = np.asarray(contact, dtype=bool)
@@ -213,10 +212,8 @@ class MotorCommandEncoder:
         self._template = _Template(MotorCommand())
         reader = CdrReader(self._template.buffer, "MotorCommand template")
         reader.header()
-        self._mode = reader.pos
-        reader.u8(1)
-        reader.f64(60)
-        self._numbers = self._template.f64_view(reader.pos - 480, 60).reshape(5, 12)
+        self._mode = reader.take(1, 1)
+        self._numbers = self._template.f64_view(reader.take(480, 8), 60).reshape(5, 12)
 
     def encode(self, command: JointCommand, stamp_ns: int) -> bytes:
         self._template.buffer[self._mode] = int(command.mode)
@@ -285,16 +282,27 @@ def decode_motor_command(buffer: bytes) -> tuple[JointCommand, int]:
             stamp.sec * 1_000_000_000 + stamp.nanosec)
 
 
-def decoding(decode: Callable[[bytes], Any], handler: Callable[[Any], None],
-             on_malformed: Callable[[str], None]) -> Callable[[bytes], None]:
-    """A raw subscription's callback: decode, then hand on. A malformed message (never one from an
-    rmw publisher of the type) is dropped and reported through ``on_malformed``, never raised into
-    the executor, where it would stop the node."""
-    def on_raw(raw: bytes) -> None:
-        try:
-            msg = decode(raw)
-        except ValueError as exc:
-            on_malformed(f"dropped a malformed message: {exc}")
-            return
-        handler(msg)
-    return on_raw
+
+def subscribe_sensors(node, qos, on_joints: Callable[[JointStateView], None], on_imu: Callable[[ImuView], None],
+                      on_contacts: Callable[[FootContactsView], None]) -> None:
+    """Subscribe ``node`` (an rclpy Node) to a bridge's three sensor topics as bytes, decoded to views.
+
+    In the order the bridges publish them, joint states last, so that within one executor wake-up a
+    node that acts on /joint_states finds the same step's IMU and contacts already handed over. A
+    malformed message (never one from an rmw publisher of the type) is dropped with an error in the
+    node's log, never raised into the executor, where it would stop the node.
+    """
+    def decoding(decode: Callable[[bytes], Any], handler: Callable[[Any], None]) -> Callable[[bytes], None]:
+        def on_raw(raw: bytes) -> None:
+            try:
+                msg = decode(raw)
+            except ValueError as exc:
+                node.get_logger().error(f"dropped a malformed message: {exc}", throttle_duration_sec=1.0)
+                return
+            handler(msg)
+        return on_raw
+
+    for msg_type, topic, decode, handler in ((Imu, "/imu/data", decode_imu, on_imu),
+                                             (FootContacts, "/foot_contacts", decode_foot_contacts, on_contacts),
+                                             (JointState, "/joint_states", JointStateDecoder(), on_joints)):
+        node.create_subscription(msg_type, topic, decoding(decode, handler), qos, raw=True)

@@ -121,13 +121,9 @@ class ConvexMpcNode(Node):
             self.create_subscription(Twist, "/cmd_vel", self._on_cmd_vel, COMMAND_QOS)
         self.create_subscription(GaitParamsMsg, "/gait/params", self._on_gait_params, COMMAND_QOS)
         # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_sim_bridge.wire).
-        for msg_type, topic, decode, handler in (
-                (JointState, "/joint_states", wire.JointStateDecoder(), self._on_joints),
-                (Imu, "/imu/data", wire.decode_imu, lambda m: self._on_sensor(self._imu, m)),
-                (FootContacts, "/foot_contacts", wire.decode_foot_contacts,
-                 lambda m: self._on_sensor(self._contacts, m))):
-            self.create_subscription(msg_type, topic, wire.decoding(decode, handler, self._malformed), CONTROL_QOS,
-                                     raw=True)
+        wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints,
+                               on_imu=lambda m: self._on_sensor(self._imu, m),
+                               on_contacts=lambda m: self._on_sensor(self._contacts, m))
         if self.frontend is None:
             self.create_subscription(Odometry, "/odom", self._on_odom, CONTROL_QOS)
         else:
@@ -153,9 +149,6 @@ class ConvexMpcNode(Node):
         buffer[ns_from_stamp(msg.header.stamp)] = msg
         while len(buffer) > 50:  # keep the last 0.1 s of sensor steps
             del buffer[min(buffer)]
-
-    def _malformed(self, text: str) -> None:
-        self.get_logger().error(text, throttle_duration_sec=1.0)
 
     def _on_cmd_vel(self, twist: Twist) -> None:
         if not self.supervisor.on_cmd_vel(twist.linear.x, twist.linear.y, twist.angular.z, self._now()):

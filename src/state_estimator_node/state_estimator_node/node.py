@@ -117,16 +117,10 @@ class StateEstimatorNode(Node):
         self.pub_odom = self.create_publisher(Odometry, "/odom", CONTROL_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_sim_bridge.wire).
-        for msg_type, topic, decode, handler in (
-                (Imu, "/imu/data", wire.decode_imu, lambda m: setattr(self, "_imu", m)),
-                (FootContacts, "/foot_contacts", wire.decode_foot_contacts, lambda m: setattr(self, "_contacts", m)),
-                (JointState, "/joint_states", wire.JointStateDecoder(), self._on_joints)):
-            self.create_subscription(msg_type, topic, wire.decoding(decode, handler, self._malformed), CONTROL_QOS,
-                                     raw=True)
+        wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints,
+                               on_imu=lambda m: setattr(self, "_imu", m),
+                               on_contacts=lambda m: setattr(self, "_contacts", m))
         self.create_timer(1.0, self._publish_diagnostics)
-
-    def _malformed(self, text: str) -> None:
-        self.get_logger().error(text, throttle_duration_sec=1.0)
 
     def _on_joints(self, msg: JointState) -> None:
         if self._imu is None or self._contacts is None:
