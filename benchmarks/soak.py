@@ -8,8 +8,8 @@ controller's first walking second (start-up, the robot sinking into damping befo
 runs and standing up, is not part of the run):
 - missed deadlines: the sim bridge's steps applied with no new /motor_command since the step
   before (``uncommanded_steps``), as a share of its steps in the interval;
-- resident memory (VmRSS) of every node process, to show growth (from the first report on: the
-  nodes are still importing and warming up before it);
+- resident memory (VmRSS) of every node process with its worker processes, to show growth (from
+  the first report on: the nodes are still importing and warming up before it);
 - the lowest base height (ground truth) in the interval: under 0.18 m is a fall.
 The command cycles through 0.5, 1.0, 1.5, 1.0, 0.5 and 0 m/s, ``--segment`` seconds each, turning
 at ``--yaw-rate`` so the robot walks circles of at most 1.5 / 0.3 = 5 m radius: the simulated
@@ -35,21 +35,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
-from graph_helpers import Graph, add_scheduling_options, apply_fifo, scheduling_from_args  # noqa: E402
+from graph_helpers import Graph, add_scheduling_options, apply_fifo, rss_mib, scheduling_from_args  # noqa: E402
 
 SPEEDS = (0.5, 1.0, 1.5, 1.0, 0.5, 0.0)  # [m/s]
 FELL_BELOW = 0.18  # [m]
-
-
-def rss_mib(pid: int) -> float | None:
-    """Resident memory of ``pid`` [MiB] from /proc, None if it is gone."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
 
 
 def main() -> None:
@@ -79,7 +68,7 @@ def main() -> None:
     from rclpy.node import Node
 
     graph = Graph(Path(tempfile.mkdtemp(prefix="soak_")))
-    graph.start_stack(args.clock, 0.5, *args.controller_param)
+    graph.start_stack(args.clock, 0.5, *args.controller_param, real_time_factor=args.real_time_factor)
     apply_fifo(graph, fifo)
     rclpy.init(args=[])  # not sys.argv: --controller-param values are no ROS arguments
     node = Node("soak_probe")
@@ -160,6 +149,9 @@ def main() -> None:
           f"lowest base height: {lowest_overall:.3f} m   all nodes alive: {all(alive.values())}")
     print("RSS growth [MiB]: " + " ".join(f"{k}={v:+.1f}" if v is not None else f"{k}=n/a"
                                           for k, v in growth.items()))
+    records = graph.fall_records()
+    for path in records:
+        print(f"fall: flight recorder {path} (plot {path.with_suffix('.png')})")
     print(json.dumps({
         "duration_s": rows[-1]["t_s"] if rows else 0.0, "missed_deadline_fraction": missed_total,
         "missed_deadline_fraction_by_interval": [r["missed_deadline_fraction"] for r in rows],
@@ -168,6 +160,7 @@ def main() -> None:
         "rss_start_mib": rss_start, "rss_end_mib": rss_end, "rss_growth_mib": growth,
         "all_nodes_alive": all(alive.values()),
         "fifo_priorities": fifo, "dds_transports": args.dds_transports or "fastdds-default",
+        "real_time_factor": args.real_time_factor, "fall_records": [str(p) for p in records],
     }))
     if not all(alive.values()):
         print(f"nodes died: {[k for k, v in alive.items() if not v]} (logs in {graph.log_dir})", file=sys.stderr)

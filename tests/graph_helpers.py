@@ -70,7 +70,7 @@ class Graph:
         return proc
 
     def start_stack(self, clock: str = "lockstep", lockstep_timeout: float = 0.5, *controller_params: str,
-                    policy_params: tuple[str, ...] = ()) -> None:
+                    policy_params: tuple[str, ...] = (), real_time_factor: float = 1.0) -> None:
         """Sim bridge, estimator, controller, gait policy (and any fault relays); ``controller_params``
         and ``policy_params`` are extra ``name:=value`` (with ``embedded_estimator:=true`` no
         state_estimator process starts, and the controller publishes /odom)."""
@@ -90,7 +90,8 @@ class Graph:
                      *[a for key, value in params.items() for a in ("-p", f"{key}:={value}")]]
             self.start(name, "fault_injection", "fault_relay", *relay)
         sim = ["--ros-args", "--params-file", str(CONFIG / "a1_sim_bridge.yaml"), "-p", f"clock_mode:={clock}",
-               "-p", f"lockstep_timeout:={lockstep_timeout}"]
+               "-p", f"lockstep_timeout:={lockstep_timeout}", "-p", f"real_time_factor:={real_time_factor}",
+               "-p", f"flight_recorder_dir:={self.log_dir}"]  # a fall: its last seconds, see fall_records
         self.start("sim_bridge", "a1_sim_bridge", "sim_bridge", *sim)
         if not embedded:
             self.start("state_estimator", "state_estimator_node", "state_estimator", "--ros-args", "--params-file",
@@ -114,6 +115,15 @@ class Graph:
 
     def alive(self) -> dict[str, bool]:
         return {name: proc.poll() is None for name, proc in self.procs.items()}
+
+    def fall_records(self) -> list[Path]:
+        """The sim bridge's flight recorder files, one per fall, each drawn next to it as a .png."""
+        from a1_sim_bridge import flight_recorder
+
+        records = sorted(self.log_dir.glob("fall_*.npz"))
+        for path in records:
+            flight_recorder.plot(flight_recorder.load(path), path.with_suffix(".png"), title=path.name)
+        return records
 
     def log(self, name: str) -> str:
         return (self.log_dir / f"{name}.log").read_text(errors="replace")
@@ -166,6 +176,45 @@ def run_until(executor, watcher, graph: Graph, sim_time: float, wall_timeout: fl
                 f"last /diagnostics: {getattr(watcher, 'diagnostics', 'not recorded')}")
 
 
+# Node resources, worker processes included (benchmarks/graph_realtime.py, benchmarks/soak.py).
+def process_tree(pid: int) -> list[int]:
+    """``pid`` and its live descendants (a node's worker processes belong to the node)."""
+    tree, i = [pid], 0
+    while i < len(tree):
+        try:
+            for task in Path(f"/proc/{tree[i]}/task").iterdir():
+                tree += [int(c) for c in (task / "children").read_text().split()]
+        except OSError:  # gone meanwhile
+            pass
+        i += 1
+    return tree
+
+
+def rss_mib(pid: int) -> float | None:
+    """Resident memory of ``pid`` and its descendants [MiB] from /proc, None if ``pid`` is gone."""
+    total = None
+    for p in process_tree(pid):
+        try:
+            lines = Path(f"/proc/{p}/status").read_text().splitlines()
+        except OSError:
+            continue
+        kib = next((int(line.split()[1]) for line in lines if line.startswith("VmRSS:")), 0)
+        total = (total or 0.0) + kib / 1024.0
+    return total
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of ``pid`` and its live descendants [s] (0 once they are gone)."""
+    total = 0.0
+    for p in process_tree(pid):
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return total
+
+
 # Scheduling experiments on realtime graphs (benchmarks/graph_realtime.py, benchmarks/soak.py);
 # why: docs/architecture.md, "Realtime on a small computer".
 FIFO_TARGETS = ("sim_bridge", "convex_mpc", "gait_policy", "probe")  # probe: the benchmark itself
@@ -177,11 +226,15 @@ def add_scheduling_options(parser: argparse.ArgumentParser) -> None:
                         help=f"run NODE ({', '.join(FIFO_TARGETS)}) at SCHED_FIFO PRIORITY 1-99 (repeatable)")
     parser.add_argument("--dds-transports", choices=DDS_TRANSPORTS,
                         help="Fast DDS builtin transports of every process (default: shared memory + UDP)")
+    parser.add_argument("--real-time-factor", type=float, default=1.0,
+                        help="sim seconds per wall second, (0, 1]: under 1 gives every node more wall time per step")
 
 
 def scheduling_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, int]:
     """{node: FIFO priority} from ``--fifo NODE=PRIORITY`` (a bad one ends the run with a clear
     message); sets ``--dds-transports`` in the environment, which every node started later inherits."""
+    if not 0.0 < args.real_time_factor <= 1.0:
+        parser.error(f"--real-time-factor must be in (0, 1], got {args.real_time_factor}")
     fifo = {}
     for spec in args.fifo:
         name, _, value = spec.partition("=")

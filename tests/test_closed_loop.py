@@ -14,7 +14,9 @@ import numpy as np
 import pytest
 from a1_common.config import ConfigError, config_dir, load_node_parameters
 from convex_mpc_node.controller import (
+    MAX_CATCH_UP,
     NODE_ONLY_PARAMETERS,
+    Observation,
     VelocityCommand,
     controller_config_from_parameters,
     load_controller_config,
@@ -134,6 +136,53 @@ def test_realtime_controller_settings_walk_with_the_mpc_in_a_worker_process():
     # Each of the 8 contact changes a second is bridged by static forces until its solve is back
     # (a step or a few), never for long: under 10 % of the 3000 steps.
     assert 8 * 6 // 2 <= stopgaps <= 300
+
+
+@pytest.mark.parametrize("mpc_async", [False, True])
+def test_injected_qp_failures_last_that_many_control_steps(mpc_async):
+    """``inject_qp_failures`` N: the next N steps each take a failed solve's fallback, whatever the
+    MPC's period (5 here) or process; the step after, a real solve is due again."""
+    config = dataclasses.replace(load_controller_config(), mpc_period_steps=5, mpc_async=mpc_async)
+    loop = ClosedLoop(GAITS["rapid_trot"], controller_config=config)
+    controller = loop.controller
+    try:
+        for _ in range(20):
+            loop.step(VelocityCommand())
+        assert controller.mpc_fallbacks == 0
+        controller.inject_qp_failures(7)
+        statuses = []
+        for _ in range(7):
+            loop.step(VelocityCommand())
+            statuses.append((controller.solved_this_step, controller.last_solution.status))
+        assert statuses == [(True, "injected failure")] * 7 and controller.mpc_fallbacks == 7
+        for _ in range(5):  # a worker's solve takes a step or a few to come back
+            loop.step(VelocityCommand())
+        assert controller.last_solution.solved and controller.mpc_fallbacks == 7
+        with pytest.raises(ConfigError, match=r"inject_qp_failures must be an integer in \[0, 1000000\]"):
+            controller.inject_qp_failures(-1)
+    finally:
+        loop.sim.close()
+        controller.close()
+
+
+def test_gait_clock_catches_up_with_missed_steps():
+    """A realtime controller that missed steps is told the sim time since its last one: the phase
+    advances by that time (capped at MAX_CATCH_UP), not by one period per step it happened to run,
+    so at 26 % missed steps a 2 Hz trot stays a 2 Hz trot in sim time instead of slowing to 1.5 Hz."""
+    loop = ClosedLoop(GAITS["slow_trot"])  # 2 Hz: 4 pi rad/s
+    controller = loop.controller
+    try:
+        r = loop.readings
+        obs = Observation(r.joint_position, r.joint_velocity, r.imu_orientation, r.imu_angular_velocity,
+                          r.foot_contact, np.zeros(3))
+        rate = 2 * np.pi * GAITS["slow_trot"].stepping_frequency
+        for elapsed, advance in [(None, 0.002), (0.002, 0.002), (0.006, 0.006), (0.0, 0.002), (5.0, MAX_CATCH_UP)]:
+            before = controller.gait.phase_fr
+            controller.step(obs, VelocityCommand(), elapsed=elapsed)
+            assert (controller.gait.phase_fr - before) % (2 * np.pi) == pytest.approx(rate * advance), elapsed
+    finally:
+        loop.sim.close()
+        controller.close()
 
 
 def test_mpc_async_must_be_a_bool():

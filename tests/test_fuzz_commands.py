@@ -230,8 +230,8 @@ def test_a_non_finite_clock_damps_instead_of_computing(controller, time):
 class _NanController(LocomotionController):
     """A controller whose output has gone bad (e.g. a solver returning NaN forces)."""
 
-    def step(self, obs, command):
-        out = super().step(obs, command)
+    def step(self, obs, command, elapsed=None):
+        out = super().step(obs, command, elapsed)
         out.torque = np.full(12, math.nan)
         return out
 

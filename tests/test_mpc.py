@@ -150,16 +150,14 @@ def test_unsolved_qp_falls_back_to_static_forces():
     assert np.all(np.isfinite(sol.forces))
 
 
-def test_injected_failures_take_the_fallback_path_then_stop():
+def test_fallback_is_the_static_split_marked_as_a_failure():
     mpc = ConvexMpc()
-    plan = np.ones((mpc.config.horizon, 4), dtype=bool)
-    command = MpcCommand(np.zeros(2), 0.0, 0.26)
-    mpc.inject_failures(3)
-    results = [mpc.solve(make_state(), command, plan) for _ in range(4)]
-    assert [r.fallback for r in results] == [True, True, True, False]
-    assert results[0].status == "injected failure" and results[3].solved
-    with pytest.raises(ConfigError, match="inject_qp_failures"):
-        mpc.inject_failures(-1)
+    contacts = np.array([True, False, False, True])
+    sol = mpc.fallback(contacts, "injected failure")
+    assert sol.fallback and not sol.solved and sol.status == "injected failure"
+    assert np.allclose(sol.forces, mpc.static_forces(contacts))
+    assert np.allclose(sol.forces[contacts, 2], mpc.config.mass * mpc.config.gravity / 2)
+    assert not sol.forces[~contacts].any()
 
 
 def test_bad_contact_plan_shape():
@@ -169,7 +167,6 @@ def test_bad_contact_plan_shape():
 
 
 def test_controller_config_file_loads_and_rejects_unknown_keys(tmp_path):
-    from a1_common.config import ConfigError
     from convex_mpc_node.controller import ControllerConfig, load_controller_config
 
     config = load_controller_config()

@@ -16,6 +16,7 @@ from ros_helpers import spin_until
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 
+from a1_sim_bridge import flight_recorder
 from gait_msgs.msg import FootContacts, MotorCommand
 
 STEP_NS = 2_000_000
@@ -145,3 +146,86 @@ def test_sim_holds_its_start_pose_until_the_first_command(rclpy_context, clock_m
         bridge.shutdown()
         bridge.destroy_node()
         listener.destroy_node()
+
+
+@pytest.mark.ros
+def test_flight_recorder_writes_the_seconds_before_a_fall(rclpy_context, tmp_path):
+    """One command starts a realtime sim, then silence: the watchdog damps, the robot folds, and the
+    recorder writes the window before the fall, with the command ageing and the damping in it."""
+    overrides = [Parameter("clock_mode", value="realtime"), Parameter("settle_time", value=0.1),
+                 Parameter("flight_recorder_dir", value=str(tmp_path)),
+                 Parameter("flight_recorder_seconds", value=1.0)]
+    bridge = SimBridgeNode(context=rclpy_context, parameter_overrides=overrides)
+    listener = Node("listener", context=rclpy_context)
+    commander = listener.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(bridge)
+    executor.add_node(listener)
+    try:
+        hold = JointCommand.hold(bridge.sim.robot)
+
+        def started() -> bool:
+            commander.publish(motor_command_msg(hold, stamp_from_ns(bridge.sim.steps * STEP_NS)))
+            return bridge.sim.steps > 0
+
+        assert spin_until(executor, started, 20.0)
+        assert spin_until(executor, lambda: any(tmp_path.glob("fall_*.npz")), 20.0)
+    finally:
+        executor.shutdown()
+        bridge.shutdown()
+        bridge.destroy_node()
+        listener.destroy_node()
+    (path,) = tmp_path.glob("fall_*.npz")
+    data = flight_recorder.load(path)
+    t = data["time_s"]
+    # Every step from the start (the fall comes within the 1 s window), once each, 2 ms apart.
+    assert t[0] == 0.0 and len(t) == round(t[-1] / 0.002) + 1 <= 500
+    assert np.allclose(np.diff(t), 0.002)
+    height = data["base_position_m"][:, 2]
+    assert height[-1] < 0.18 <= height.max()
+    assert data["damping"][-1] == 1 and data["damping"].sum() < len(t)  # it damped within the window
+    damped = np.flatnonzero(data["damping"])
+    age = data["command_age_s"]
+    # The watchdog's rule, seen from the robot: never damping while the command is younger than
+    # command_timeout (0.05 s). Age counts from the stamp, the watchdog from the arrival, which this
+    # test's executor may delay by some steps: the bound after the timeout is another test's.
+    assert np.all(data["damping"][age <= 0.05] == 0) and age[damped[0]] > 0.05
+    assert np.all(data["damping"][damped[0]:] == 1)
+    assert not any(tmp_path.glob("*.tmp"))  # written atomically
+
+
+def test_flight_recorder_ring_and_file_checks(tmp_path):
+    recorder = flight_recorder.FlightRecorder(seconds=0.01, time_step=0.002)  # 5 rows
+    row = {name: np.zeros(width) if width > 1 else 0.0 for name, width in flight_recorder.FIELDS.items()}
+    row["base_orientation_xyzw"] = np.array([0.0, 0.0, 0.0, 1.0])
+    for k in range(8):
+        recorder.record(**{**row, "time_s": k * 0.002})
+    window = recorder.window()
+    assert np.allclose(window["time_s"], [0.006, 0.008, 0.010, 0.012, 0.014])  # the last 5, oldest first
+    assert window["joint_torque_nm"].shape == (5, 12)
+    path = recorder.save(tmp_path / "w.npz")
+    assert np.allclose(flight_recorder.load(path)["time_s"], window["time_s"])
+    del window["damping"]
+    np.savez(tmp_path / "short.npz", **window)
+    with pytest.raises(ConfigError, match="damping"):
+        flight_recorder.load(tmp_path / "short.npz")
+    np.save(tmp_path / "obj.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(ValueError):
+        flight_recorder.load(tmp_path / "obj.npy")  # a pickle is never loaded
+    with pytest.raises(ConfigError, match="flight_recorder_seconds"):
+        flight_recorder.FlightRecorder(seconds=0.0, time_step=0.002)
+    np.savez(tmp_path / "zero_quaternion.npz", **{**window, "damping": np.zeros(5),
+                                                    "base_orientation_xyzw": np.zeros((5, 4))})
+    with pytest.raises(ConfigError, match="base_orientation_xyzw"):
+        flight_recorder.load(tmp_path / "zero_quaternion.npz")
+    out = flight_recorder.plot(flight_recorder.load(path), tmp_path / "w.png")
+    assert out.stat().st_size > 0
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("name, value", [("real_time_factor", 0.0), ("real_time_factor", 1.5),
+                                         ("fall_height", -0.1), ("flight_recorder_seconds", -1.0)])
+def test_realtime_factor_and_recorder_parameters_checked(rclpy_context, name, value):
+    with pytest.raises(ConfigError, match=name):
+        SimBridgeNode(context=rclpy_context, parameter_overrides=[Parameter(name, value=value),
+                                                                  Parameter("flight_recorder_dir", value="/tmp")])

@@ -63,7 +63,7 @@ start_graph() {  # <logdir> <world> <clock> <policy> [bridge]: a bridge and the 
   case "$bridge" in
     sim)
       start_node a1_sim_bridge sim_bridge "$logdir" --ros-args --params-file "$cfg/a1_sim_bridge.yaml" \
-        -p world:="$world" -p clock_mode:="$clock" ;;
+        -p world:="$world" -p clock_mode:="$clock" -p flight_recorder_dir:="$logdir" ;;  # a fall: its last 5 s
     virtual)
       start_node a1_hw_bridge virtual_a1 "$logdir" --ros-args --params-file "$cfg/virtual_a1.yaml" \
         -p world:="$world" -p clock_mode:="$clock"

@@ -18,6 +18,7 @@ setup(
             "sim_bridge = a1_sim_bridge.node:main",
             "joint_hold = a1_sim_bridge.joint_hold_node:main",
             "robot_state_monitor = a1_sim_bridge.monitor_node:main",
+            "flight_recorder_plot = a1_sim_bridge.flight_recorder:main",
         ]
     },
 )

@@ -5,7 +5,8 @@ only) /sim/ground_truth/odom; subscribes /motor_command. Clock modes:
 - lockstep: after publishing the sensors of step k (stamp t_k), wait for a /motor_command stamped
   t_k, apply it and advance; if none comes within ``lockstep_timeout`` of wall time, advance anyway
   (the watchdog then sends the motors to damping after ``command_timeout`` of sim time).
-- realtime: paced by the wall clock at 1/time_step; the latest valid command is applied.
+- realtime: paced by the wall clock at 1/time_step (times ``real_time_factor``, 1 by default); the
+  latest valid command is applied.
 In both modes the sim holds its start pose (sensors offered again each step, time stopped) until
 the first valid command after start-up or ~/reset.
 QoS of the 500 Hz topics: RELIABLE, KEEP_LAST 1, VOLATILE (see docs/architecture.md).
@@ -19,13 +20,15 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import math
 import threading
 import time
 import traceback
+from pathlib import Path
 
 import numpy as np
 import rclpy
-from a1_common.command import CommandWatchdog
+from a1_common.command import CommandWatchdog, MotorMode
 from a1_common.config import ConfigError, parameter_defaults, require_range
 from a1_common.node_support import coerce_parameter, declare_parameters, run_node
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -39,6 +42,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from a1_sim_bridge import conversions as cv
 from a1_sim_bridge import wire
+from a1_sim_bridge.flight_recorder import FlightRecorder
 from a1_sim_bridge.sim import A1Sim, SimConfig
 from gait_msgs.msg import FootContacts, MotorCommand
 
@@ -49,7 +53,11 @@ NODE_PARAMETERS = {  # node-only parameters and defaults; the rest configure A1S
     "clock_mode": "lockstep",
     "command_timeout": 0.05,
     "lockstep_timeout": 0.5,
+    "real_time_factor": 1.0,
     "publish_ground_truth": True,
+    "flight_recorder_dir": "",
+    "flight_recorder_seconds": 5.0,
+    "fall_height": 0.18,
 }
 
 
@@ -65,7 +73,20 @@ class SimBridgeNode(Node):
         self.watchdog = CommandWatchdog(params["command_timeout"])
         self.lockstep_timeout = require_range("lockstep_timeout", params["lockstep_timeout"], 0.0, 10.0,
                                               low_open=True)
+        # realtime: sim seconds per wall second. Under 1 a computer too slow for the graph at full speed
+        # still runs it with every deadline scaled alike (commands are stamped in sim time).
+        self.real_time_factor = require_range("real_time_factor", params["real_time_factor"], 0.0, 1.0,
+                                              low_open=True)
         self.publish_ground_truth = bool(params["publish_ground_truth"])
+        # Flight recorder (off with no directory): the last seconds before a fall, as an .npz.
+        self.recorder_dir = str(params["flight_recorder_dir"])
+        self.recorder = (FlightRecorder(params["flight_recorder_seconds"], self.sim.config.time_step)
+                         if self.recorder_dir else None)
+        self.fall_height = require_range("fall_height", params["fall_height"], 0.0, 1.0)
+        self._recorded_stamp_ns = -1
+        self._fall_recorded = False  # one file per fall: re-armed when the base is up again, or on reset
+        self._applied_damping = False
+        self._applied_stamp_ns = -1  # stamp of the command applied in the last step (-1: none yet)
         self.dt_ns = round(self.sim.config.time_step * 1e9)
         self.joint_names = list(self.sim.robot.joint_names)
         self.encoders = wire.SensorEncoders(self.joint_names, cv.BASE_FRAME, cv.IMU_FRAME)
@@ -166,7 +187,7 @@ class SimBridgeNode(Node):
 
     # --- simulation loop (own thread) --------------------------------------------------------
     def _loop(self) -> None:
-        period = self.sim.config.time_step
+        period = self.sim.config.time_step / self.real_time_factor  # realtime pacing, wall seconds
         next_deadline = time.monotonic()
         try:
             self._publish(self.sim.sensors())
@@ -193,6 +214,8 @@ class SimBridgeNode(Node):
                         readings = self.sim.sensors()
                     else:
                         command = self.watchdog.active(self.sim.time)
+                        self._applied_damping = command.mode == MotorMode.DAMPING
+                        self._applied_stamp_ns = self._pending_stamp_ns
                         # A missed 2 ms deadline, as the robot sees it: nothing new to apply this step.
                         self._uncommanded_steps += self.watchdog.accepted == self._accepted_at_last_step
                         self._accepted_at_last_step = self.watchdog.accepted
@@ -226,9 +249,13 @@ class SimBridgeNode(Node):
         seed = coerce_parameter("seed", self.get_parameter("seed").value, 0)
         readings = self.sim.reset(world=world, seed=seed)
         self.watchdog.clear_command()
-        self._pending_stamp_ns = -1
+        self._pending_stamp_ns = self._applied_stamp_ns = -1
         self._published_at.clear()
         self._lowest_base_height = float("inf")  # a fall before the reset is not this run's
+        if self.recorder is not None:
+            self.recorder.clear()
+            self._fall_recorded = False
+            self._recorded_stamp_ns = -1
         self._reset_requested = False
         self.get_logger().info(f"simulation reset: world={world} seed={seed}")
         self._publish(readings)
@@ -250,12 +277,38 @@ class SimBridgeNode(Node):
         self._published += 1
         if self.pub_clock.get_subscription_count():
             self.pub_clock.publish(Clock(clock=cv.stamp_from_ns(stamp_ns)))
-        if self.publish_ground_truth:
+        if self.publish_ground_truth or self.recorder is not None:
             truth = self.sim.ground_truth()
+            if self.recorder is not None and stamp_ns != self._recorded_stamp_ns:  # steps, not re-offers
+                self._recorded_stamp_ns = stamp_ns
+                self._record(readings, truth, stamp_ns)
+        if self.publish_ground_truth:
             with self._lock:
                 self._lowest_base_height = min(self._lowest_base_height, float(truth.base_position[2]))
             if self.pub_truth.get_subscription_count():
                 self.pub_truth.publish(cv.ground_truth_msg(truth, cv.stamp_from_ns(stamp_ns)))
+
+    def _record(self, readings, truth, stamp_ns: int) -> None:
+        """One step into the flight recorder; on a fall, its window to ``flight_recorder_dir``."""
+        age = (stamp_ns - self._applied_stamp_ns) * 1e-9 if self._applied_stamp_ns >= 0 else math.nan
+        self.recorder.record(
+            time_s=truth.time, base_position_m=truth.base_position, base_orientation_xyzw=truth.base_orientation,
+            base_velocity_body_mps=truth.base_linear_velocity_body,
+            base_angular_velocity_body_radps=truth.base_angular_velocity_body,
+            foot_contact=readings.foot_contact, joint_position_rad=readings.joint_position,
+            joint_torque_nm=readings.joint_torque, command_age_s=age, damping=self._applied_damping)
+        height = float(truth.base_position[2])
+        if height < self.fall_height and not self._fall_recorded:
+            self._fall_recorded = True
+            path = Path(self.recorder_dir) / f"fall_{time.strftime('%Y%m%d_%H%M%S')}_t{truth.time:.3f}s.npz"
+            try:
+                self.recorder.save(path)
+                self.get_logger().error(f"fall (base {height:.3f} m < fall_height {self.fall_height} m) at "
+                                        f"t={truth.time:.3f} s; flight recorder: {path}")
+            except OSError as exc:
+                self.get_logger().error(f"fall at t={truth.time:.3f} s; flight recorder not written: {exc}")
+        elif height > self.fall_height + 0.05:
+            self._fall_recorded = False
 
     def _publish_diagnostics(self) -> None:
         with self._lock:

@@ -32,6 +32,10 @@ from convex_mpc_node.gait import LEG_SWING, GaitParams, PhaseIntegrator
 from convex_mpc_node.mpc import ConvexMpc, MpcCommand, MpcConfig, MpcSolution, MpcState
 from convex_mpc_node.mpc_worker import MpcWorkerProcess
 
+# [s] the most the gait clock catches up in one step: a longer gap (a stall past the bridges'
+# 50 ms watchdog, which has damped the motors meanwhile) is not walked through in one jump.
+MAX_CATCH_UP = 0.1
+
 
 @dataclass(frozen=True)
 class ControllerConfig:
@@ -179,6 +183,7 @@ class LocomotionController:
         self._yaw_tangent = np.column_stack([-neutral[:, 1], neutral[:, 0]])
         self._raibert_clip = np.asarray(cfg.raibert_clip)
         self.mpc_fallbacks = 0
+        self.qp_failure_steps = 0  # fault injection: the MPC fails for this many more steps
         self._worker = MpcWorkerProcess(self.config.mpc) if self.config.mpc_async else None
         self.reset()
 
@@ -187,6 +192,11 @@ class LocomotionController:
         if self._worker is not None:
             self._worker.close()
             self._worker = None
+
+    def inject_qp_failures(self, steps: int) -> None:
+        """Fault injection: the MPC fails for the next ``steps`` control steps (each step takes a
+        solver failure's fallback, whatever ``mpc_period_steps`` and ``mpc_async`` are)."""
+        self.qp_failure_steps = require_integer("inject_qp_failures", steps, 0, 1_000_000)
 
     def reset(self) -> None:
         if self._worker is not None:
@@ -207,10 +217,22 @@ class LocomotionController:
     def set_gait(self, params: GaitParams) -> None:
         self.gait.set_params(params)
 
-    def step(self, obs: Observation, command: VelocityCommand) -> JointCommand:
-        """One control step: compute the joint command for ``obs``, then advance the phases by dt."""
+    def step(self, obs: Observation, command: VelocityCommand, elapsed: float | None = None) -> JointCommand:
+        """One control step: compute the joint command for ``obs``, then advance the phases by one
+        control period.
+
+        ``elapsed``: sim time since the previous step [s], from the sensor stamps. More than one
+        period means steps were missed (a realtime controller late for its 2 ms): the gait clock
+        first catches up, so the phases, the MPC's contact plan and the swing timing stay in time
+        with the world rather than lagging by every missed step.
+        """
         cfg = self.config
         robot = self.robot
+        dt = cfg.control_period
+        if elapsed is not None and elapsed > dt:
+            catch_up = min(elapsed, MAX_CATCH_UP) - dt
+            self.gait.step(catch_up)
+            dt += catch_up
         q_measured = np.asarray(obs.joint_position, dtype=float)
         q = q_measured + cfg.latency_compensation * np.asarray(obs.joint_velocity, dtype=float)
         rot = quat_to_matrix(np.asarray(obs.orientation, dtype=float))  # base -> world
@@ -234,7 +256,6 @@ class LocomotionController:
         v_yaw = rot_yaw.T @ np.asarray(obs.base_velocity, dtype=float)
         w_yaw = rot_rp @ np.asarray(obs.angular_velocity, dtype=float)
 
-        dt = cfg.control_period
         v_cmd = np.array([command.vx, command.vy])
         # np.minimum/np.maximum, not np.clip: on arrays this small np.clip costs several times more.
         self._position_error = np.minimum(np.maximum(self._position_error + (v_cmd - v_yaw[:2]) * dt,
@@ -254,11 +275,15 @@ class LocomotionController:
             self._adopt(finished, self._solved_contacts, self._steps_since_solve + 1)  # submitted that long ago
         due = (self.last_solution is None or self._steps_since_solve + 1 >= cfg.mpc_period_steps
                or not np.array_equal(plan[0], self._solved_contacts))
-        if due and not (worker is not None and worker.pending):
+        if self.qp_failure_steps > 0:  # fault injection: this step's solve "fails"
+            self.qp_failure_steps -= 1
+            self._adopt(self.mpc.fallback(plan[0], "injected failure"), plan[0], 0)
+            self._steps_since_solve = cfg.mpc_period_steps  # a real solve is due right after
+            self._solved_contacts = plan[0].copy()
+        elif due and not (worker is not None and worker.pending):
             problem = (MpcState(roll, pitch, height, w_yaw, v_yaw, feet_yaw),
                        MpcCommand(v_cmd, command.yaw_rate, cfg.body_height, self._position_error, yaw_error), plan)
-            # In this process: the first solve (nothing to apply meanwhile) and injected failures.
-            if worker is not None and self.last_solution is not None and not self.mpc.injected_failures:
+            if worker is not None and self.last_solution is not None:  # the first solve: in this process
                 worker.submit(*problem)
             else:
                 self._adopt(self.mpc.solve(*problem), plan[0], 0)

@@ -185,7 +185,6 @@ class ConvexMpc:
 
     def __init__(self, config: MpcConfig | None = None) -> None:
         self.config = cfg = (config or MpcConfig()).validated()
-        self.injected_failures = 0  # the next N solves fail (fault injection; see inject_failures)
         h = cfg.horizon
         self._n_x = h * NX
         self.n_var = h * (NX + NU)
@@ -295,10 +294,6 @@ class ConvexMpc:
 
     def solve(self, state: MpcState, command: MpcCommand, contact_plan: np.ndarray) -> MpcSolution:
         """Forces for the first horizon step. On solver failure: a static force split (fallback)."""
-        if self.injected_failures > 0:  # fault injection: exercise the fallback path end to end
-            self.injected_failures -= 1
-            return MpcSolution(self.static_forces(np.asarray(contact_plan)[0]), "injected failure", False, 0,
-                               0.0, 0.0, fallback=True)
         t0 = time.perf_counter()
         data = self.build(state, command, contact_plan)
         t1 = time.perf_counter()
@@ -317,12 +312,13 @@ class ConvexMpc:
             forces = np.asarray(x[self._n_x:self._n_x + NU]).reshape(NUM_LEGS, 3).copy()
             forces[~np.asarray(contact_plan, dtype=bool)[0]] = 0.0
             return MpcSolution(forces, status, True, info.iter, t2 - t1, t1 - t0)
-        return MpcSolution(self.static_forces(np.asarray(contact_plan)[0]), status, False, info.iter,
-                           t2 - t1, t1 - t0, fallback=True)
+        return self.fallback(np.asarray(contact_plan)[0], status, info.iter, t2 - t1, t1 - t0)
 
-    def inject_failures(self, count: int) -> None:
-        """Make the next ``count`` solves fail as a solver failure would (fault-injection tests)."""
-        self.injected_failures = require_integer("inject_qp_failures", count, 0, 1_000_000)
+    def fallback(self, contacts: np.ndarray, status: str, iterations: int = 0, solve_time: float = 0.0,
+                 build_time: float = 0.0) -> MpcSolution:
+        """What a failed solve gives: the static force split for the ``contacts`` of its first step."""
+        return MpcSolution(self.static_forces(contacts), status, False, iterations, solve_time, build_time,
+                           fallback=True)
 
     def static_forces(self, contact: np.ndarray) -> np.ndarray:
         """Fallback: the weight shared equally by the feet in contact, straight up."""

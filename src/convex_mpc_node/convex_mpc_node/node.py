@@ -10,7 +10,7 @@ no /joint_states there is nothing to command: the bridge's own watchdog damps th
 Inputs: /cmd_vel (geometry_msgs/Twist, or TwistStamped with ``cmd_vel_stamped``), /gait/params,
 /joint_states, /imu/data, /foot_contacts, /odom; /estop (std_msgs/Bool, true latches damping) and
 ~/clear_estop (std_srvs/Trigger). Runtime parameters: ``mode`` (stand | walk | damping) and, for
-fault-injection tests, ``inject_qp_failures`` (setting N makes the next N MPC solves fail).
+fault-injection tests, ``inject_qp_failures`` (setting N makes the MPC fail for the next N control steps).
 
 With ``embedded_estimator`` the node runs the state estimator's core itself (parameters from
 config/state_estimator.yaml) as soon as a step's three sensor messages are in, and publishes /odom
@@ -186,10 +186,10 @@ class ConvexMpcNode(Node):
         return SetParametersResult(successful=True)
 
     def _inject_qp_failures(self, count: int) -> None:
-        """Fault injection: the next ``count`` MPC solves fail (the controller's fallback takes over)."""
-        self.controller.mpc.inject_failures(count)
+        """Fault injection: the MPC fails for the next ``count`` control steps (its fallback takes over)."""
+        self.controller.inject_qp_failures(count)
         if count:
-            self.get_logger().warning(f"fault injection: the next {count} MPC solves will fail")
+            self.get_logger().warning(f"fault injection: the MPC fails for the next {count} control steps")
 
     def _on_sensor(self, buffer: dict, msg) -> None:
         self._store(buffer, msg)

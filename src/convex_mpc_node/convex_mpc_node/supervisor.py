@@ -206,7 +206,7 @@ class ControllerSupervisor:
                 self._stopped_since = now
             if self._stopped_since is None or now - self._stopped_since < STOP_SETTLE_TIME:
                 self.stopping_steps += 1
-                return self._walk(now, obs, velocity_command, "stopping")
+                return self._walk(now, dt, obs, velocity_command, "stopping")
         if stale:
             self.safe_stand_steps += 1
             self._walking = False
@@ -218,12 +218,13 @@ class ControllerSupervisor:
         if not self._walking:
             self.controller.reset()
             self._walking = True
-        return self._walk(now, obs, velocity_command, "walk")
+        return self._walk(now, dt, obs, velocity_command, "walk")
 
-    def _walk(self, now: float, obs: Observation, command: VelocityCommand, state: str) -> StepResult:
-        """One step of the locomotion controller on the current gait."""
+    def _walk(self, now: float, elapsed: float, obs: Observation, command: VelocityCommand, state: str) -> StepResult:
+        """One step of the locomotion controller on the current gait; ``elapsed`` [s] since the last
+        step lets the controller's gait clock catch up with missed steps."""
         self.controller.set_gait(self._current_gait(now, command))
-        return StepResult(self.controller.step(obs, command), state, command)
+        return StepResult(self.controller.step(obs, command, elapsed=elapsed), state, command)
 
     def _stood_up(self, obs: Observation) -> bool:
         """Walking starts only from a real stance: joints near the nominal pose, body level."""
