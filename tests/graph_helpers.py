@@ -10,6 +10,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import spin_until
 from std_srvs.srv import SetBool
 
@@ -17,6 +18,10 @@ ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config"
 DAMPING_KD = 2.0  # config/a1_robot.yaml damping_kd [N m s/rad]
 MOTOR_TORQUE_LIMIT = 33.5  # [N m]
+SIM_DT = 0.002  # config/a1_sim_bridge.yaml time_step [s]
+# Probes' subscriptions to the 500 Hz topics: a test process is slower than the nodes, so it keeps a
+# deep queue (the graph's own depth 1 would drop samples whenever pytest falls behind).
+PROBE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def executable(pkg: str, exe: str) -> str:
@@ -147,11 +152,14 @@ def damping_onset(joints: list[tuple[float, np.ndarray, np.ndarray]], after: flo
     """Sim time of the first step after ``after`` whose applied torques are damping's, or None.
 
     ``joints``: (stamp, joint velocity, joint effort) of /joint_states. Damping's signature: the
-    torque applied over a step is -kd * (the joint velocity at its start), clipped to the motor limit.
+    torque applied over a step is -kd * (the joint velocity at its start), clipped to the motor limit,
+    so only pairs of consecutive steps (stamps one SIM_DT apart) are judged; a probe that missed
+    messages cannot be mistaken for, or mask, damping.
     """
-    for (_, dq0, _), (t1, _, tau1) in itertools.pairwise(joints):
-        if t1 > after and np.allclose(tau1, np.clip(-DAMPING_KD * dq0, -MOTOR_TORQUE_LIMIT, MOTOR_TORQUE_LIMIT),
-                                      atol=1e-6):
+    for (t0, dq0, _), (t1, _, tau1) in itertools.pairwise(joints):
+        consecutive = abs(t1 - t0 - SIM_DT) < 0.25 * SIM_DT
+        if t1 > after and consecutive and np.allclose(
+                tau1, np.clip(-DAMPING_KD * dq0, -MOTOR_TORQUE_LIMIT, MOTOR_TORQUE_LIMIT), atol=1e-6):
             return t1
     return None
 

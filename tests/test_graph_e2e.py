@@ -16,7 +16,7 @@ import pytest
 from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
 from geometry_msgs.msg import Twist
-from graph_helpers import ROOT, Graph, damping_onset, run_until, set_sim_paused
+from graph_helpers import PROBE_QOS, ROOT, Graph, damping_onset, run_until, set_sim_paused
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -39,14 +39,14 @@ class Watcher(Node):
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self._pub = self.create_publisher(Twist, "/cmd_vel", reliable)
         self._last_pub = 0.0
-        self.create_subscription(Odometry, "/sim/ground_truth/odom", self._on_truth, CONTROL_QOS)
+        self.create_subscription(Odometry, "/sim/ground_truth/odom", self._on_truth, PROBE_QOS)
 
     def watch_joints_and_commands(self) -> None:
         """Also record /motor_command stamps and /joint_states: 1000 messages/s more for this
         process, which shares the 2 cores with the graph, so only for the tests that need them."""
         self.create_subscription(MotorCommand, "/motor_command",
-                                 lambda m: self.commands.append(ns_from_stamp(m.header.stamp) * 1e-9), CONTROL_QOS)
-        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
+                                 lambda m: self.commands.append(ns_from_stamp(m.header.stamp) * 1e-9), PROBE_QOS)
+        self.create_subscription(JointState, "/joint_states", self._on_joints, PROBE_QOS)
 
     def _on_truth(self, m: Odometry) -> None:
         self.truth.append((ns_from_stamp(m.header.stamp) * 1e-9, m.twist.twist.linear.x, m.pose.pose.position.z))
