@@ -142,8 +142,6 @@ def main() -> None:
     for name, value in rows:
         print(f"{name:<{width}}  {value}")
     records = graph.fall_records()
-    for path in records:
-        print(f"fall: flight recorder {path} (plot {path.with_suffix('.png')})")
     print(json.dumps({
         "window_s": window, "bridge_step_rate_hz": steps / window, "control_rate_hz": rate,
         "missed_deadline_fraction": missed,

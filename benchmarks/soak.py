@@ -150,8 +150,6 @@ def main() -> None:
     print("RSS growth [MiB]: " + " ".join(f"{k}={v:+.1f}" if v is not None else f"{k}=n/a"
                                           for k, v in growth.items()))
     records = graph.fall_records()
-    for path in records:
-        print(f"fall: flight recorder {path} (plot {path.with_suffix('.png')})")
     print(json.dumps({
         "duration_s": rows[-1]["t_s"] if rows else 0.0, "missed_deadline_fraction": missed_total,
         "missed_deadline_fraction_by_interval": [r["missed_deadline_fraction"] for r in rows],

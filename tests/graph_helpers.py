@@ -122,12 +122,14 @@ class Graph:
         return {name: proc.poll() is None for name, proc in self.procs.items()}
 
     def fall_records(self) -> list[Path]:
-        """The sim bridge's flight recorder files, one per fall, each drawn next to it as a .png."""
+        """The sim bridge's flight recorder files, one per fall, each drawn next to it as a .png and
+        named on stdout."""
         from a1_sim_bridge import flight_recorder
 
         records = sorted(self.log_dir.glob("fall_*.npz"))
         for path in records:
             flight_recorder.plot(flight_recorder.load(path), path.with_suffix(".png"), title=path.name)
+            print(f"fall: flight recorder {path} (plot {path.with_suffix('.png')})")
         return records
 
     def log(self, name: str) -> str:
