@@ -23,7 +23,7 @@ from convex_mpc_node.controller import (
     swing_curve,
 )
 from convex_mpc_node.gait import gait_for_speed, load_hand_tuned_gaits
-from gait_policy_node.rollout import ClosedLoop, ramp_profile, run_closed_loop
+from gait_policy_node.rollout import ClosedLoop, ramp_profile, run_closed_loop, run_with_late_commands
 
 GAITS = load_hand_tuned_gaits()
 CONFIG = config_dir()
@@ -121,13 +121,18 @@ def test_mpc_every_third_step_still_trots_and_resolves_on_contact_changes():
     assert stopgaps == 0  # solved in the step: every plan is for the contacts of its step
 
 
-@pytest.mark.slow
-def test_realtime_controller_settings_walk_with_the_mpc_in_a_worker_process():
-    """config/convex_mpc_realtime.yaml over convex_mpc.yaml (what realtime graphs run): the MPC solves
-    asynchronously every 5 steps, the step uses the newest finished solve; it still tracks 1.5 m/s."""
+def realtime_controller_config():
+    """config/convex_mpc_realtime.yaml over convex_mpc.yaml: what realtime graphs run."""
     params = {**load_node_parameters(CONFIG / "convex_mpc.yaml", "convex_mpc"),
               **load_node_parameters(CONFIG / "convex_mpc_realtime.yaml", "convex_mpc")}
-    config = controller_config_from_parameters({k: v for k, v in params.items() if k not in NODE_ONLY_PARAMETERS})
+    return controller_config_from_parameters({k: v for k, v in params.items() if k not in NODE_ONLY_PARAMETERS})
+
+
+@pytest.mark.slow
+def test_realtime_controller_settings_walk_with_the_mpc_in_a_worker_process():
+    """The realtime settings: the MPC solves asynchronously every 5 steps, the step uses the newest
+    finished solve; it still tracks 1.5 m/s."""
+    config = realtime_controller_config()
     assert config.mpc_async and config.mpc_period_steps == 5
     solves, fallbacks, stopgaps = trot_to_1_5_mps(config)
     assert fallbacks == 0
@@ -136,6 +141,24 @@ def test_realtime_controller_settings_walk_with_the_mpc_in_a_worker_process():
     # Each of the 8 contact changes a second is bridged by static forces until its solve is back
     # (a step or a few), never for long: under 10 % of the 3000 steps.
     assert 8 * 6 // 2 <= stopgaps <= 300
+
+
+@pytest.mark.slow
+def test_realtime_force_weight_walks_through_20_ms_of_command_latency():
+    """Realtime commands arrive late. With the realtime settings' MPC force weight and period (solved
+    in the step here, so the run is deterministic) a 1.5 m/s trot stays up with every command 20 ms
+    late for 3 s; with the lockstep file's force weight at the same period it falls
+    (benchmarks/delay_margin.py sweeps the margin)."""
+    realtime = dataclasses.replace(realtime_controller_config(), mpc_async=False)
+    lockstep_weight = dataclasses.replace(realtime, mpc=load_controller_config().mpc)
+    assert realtime.mpc.force_weight > lockstep_weight.mpc.force_weight
+
+    def fall_time(config):
+        return run_with_late_commands(lambda t, c: gait_for_speed(c.vx, GAITS), ramp_profile(1.5), 6.0,
+                                      controller_config=config, fault_at=3.0, latency=0.02)
+
+    assert fall_time(realtime) is None
+    assert fall_time(lockstep_weight) is not None
 
 
 @pytest.mark.parametrize("mpc_async", [False, True])

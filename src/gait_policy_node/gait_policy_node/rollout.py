@@ -7,11 +7,13 @@ trainer, the evaluation tools, the tests and the benchmarks all run through ``ru
 
 from __future__ import annotations
 
+import collections
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from a1_common.command import JointCommand
 from a1_common.kinematics import quat_to_matrix
 from a1_sim_bridge.sim import A1Sim, SensorReadings, SimConfig
 from convex_mpc_node.controller import ControllerConfig, LocomotionController, Observation, VelocityCommand
@@ -105,23 +107,33 @@ class ClosedLoop:
         self.truth = self.sim.ground_truth()
         self.estimated_velocity = np.zeros(3)  # world [m/s], what the last estimator update gave
         self.step_times = (0.0, 0.0, 0.0)  # [s] wall: estimator, controller, physics of the last step
+        self._estimated_at = 0.0
 
     def step(self, command: VelocityCommand) -> None:
         """Estimate, control and simulate one control period; readings and truth are then current."""
-        r = self.readings
         t0 = time.perf_counter()
+        joint_command, t1 = self.control(command), self._estimated_at
+        t2 = time.perf_counter()
+        self.actuate(joint_command)
+        t3 = time.perf_counter()
+        self.step_times = (t1 - t0, t2 - t1, t3 - t2)
+
+    def control(self, command: VelocityCommand, elapsed: float | None = None) -> JointCommand:
+        """The estimator's update and the controller's joint command for the current readings
+        (``elapsed``: sim time since the last control step, when steps were missed)."""
+        r = self.readings
         estimate = self.estimator.update(sample_from_readings(r))
-        t1 = time.perf_counter()
+        self._estimated_at = time.perf_counter()
         self.estimated_velocity = estimate.velocity_world
         velocity = estimate.velocity_world if self.use_estimate else self.truth.base_linear_velocity
         obs = Observation(r.joint_position, r.joint_velocity, r.imu_orientation, r.imu_angular_velocity,
                           r.foot_contact, velocity)
-        joint_command = self.controller.step(obs, command)
-        t2 = time.perf_counter()
+        return self.controller.step(obs, command, elapsed)
+
+    def actuate(self, joint_command: JointCommand) -> None:
+        """Simulate one control period with ``joint_command`` on the motors."""
         self.readings = self.sim.step(joint_command)
-        t3 = time.perf_counter()
         self.truth = self.sim.ground_truth()
-        self.step_times = (t1 - t0, t2 - t1, t3 - t2)
 
     @property
     def fallen(self) -> bool:
@@ -180,5 +192,53 @@ def run_closed_loop(schedule: GaitSchedule, profile: SpeedProfile, duration: flo
                 break
         traj.mpc_fallbacks = loop.controller.mpc_fallbacks
         return traj
+    finally:
+        loop.sim.close()
+
+
+def run_with_late_commands(schedule: GaitSchedule, profile: SpeedProfile, duration: float, *,
+                           controller_config: ControllerConfig | None = None, fault_at: float = 0.0,
+                           latency: float = 0.0, stall: float = 0.0, stall_every: float = 0.5,
+                           seed: int = 0) -> float | None:
+    """Like ``run_closed_loop``, but from ``fault_at`` [s] on the commands reach the motors late, as
+    on a loaded realtime computer; returns the sim time of a fall [s], or None if it stayed up.
+
+    ``latency`` [s]: every command arrives that late (the motors hold the last one meanwhile).
+    ``stall`` [s]: about every ``stall_every`` s (0.5x-1.5x, seeded) the controller misses that much
+    time of steps (the motors hold its last command, the estimator sees nothing), then resumes with
+    its gait clock caught up, as the node's supervisor does. Deterministic for a given seed.
+    """
+    loop = ClosedLoop(schedule(0.0, profile(0.0)), controller_config=controller_config)
+    try:
+        dt = loop.sim.config.time_step
+        delay_steps = round(latency / dt)
+        steps_per_policy = round(POLICY_PERIOD / dt)
+        rng = np.random.default_rng(seed)
+        next_stall = fault_at + stall_every * rng.uniform(0.0, 1.0)
+        in_flight: collections.deque[JointCommand] = collections.deque()
+        applied = None
+        last_control_time = None
+        k = 0
+        while k * dt < duration:
+            t = k * dt
+            command = profile(t)
+            if k % steps_per_policy == 0:
+                loop.controller.set_gait(schedule(t, command))
+            held_steps = 1
+            if stall > 0.0 and t >= next_stall:
+                next_stall = t + stall + stall_every * rng.uniform(0.5, 1.5)
+                held_steps = round(stall / dt)
+            else:
+                now = loop.readings.time
+                in_flight.append(loop.control(command, None if last_control_time is None else now - last_control_time))
+                last_control_time = now
+                if t < fault_at or len(in_flight) > delay_steps:
+                    applied = in_flight.popleft()
+            for _ in range(held_steps):
+                loop.actuate(applied)
+                k += 1
+            if loop.fallen:
+                return round(k * dt, 3)
+        return None
     finally:
         loop.sim.close()

@@ -1,0 +1,106 @@
+"""How much loop delay the controller survives, in-process and deterministic (sim core + Kalman
+estimator + controller, no ROS), so that a change meant to make it delay-tolerant can be measured
+in minutes rather than by 10-minute realtime soaks.
+
+Rapid-trot schedule ramped to SPEED at 1 m/s^2. From FAULT_AT on, one of two faults:
+
+- sustained latency: every joint command reaches the motors ``latency`` late (the motors hold the
+  last one they had meanwhile), as the realtime scenario's 20 ms /motor_command delay;
+- stalls: the controller process misses ``stall`` seconds of steps about every STALL_EVERY s (the
+  motors hold its last command, the estimator sees no samples), then resumes and its gait clock
+  catches up (``elapsed``), as the realtime graph's 20-40 ms command gaps under CPU contention.
+
+Each for several MPC periods (solve every N control steps; the realtime overlay uses 5) and MPC
+force weights (alpha: config/convex_mpc.yaml's 1e-6, the realtime overlay's 3e-5). A run survives
+if it does not fall (tilt or height, rollout.tilted_or_low) before FAULT_AT + HOLD. Prints two
+tables, then one JSON line.
+
+Usage: source scripts/env.sh && python benchmarks/delay_margin.py [--periods 1,5]
+       [--force-weights 1e-6,3e-5] [--latencies-ms 0,10,20] [--stalls-ms 20,40]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+
+from convex_mpc_node.controller import load_controller_config
+from convex_mpc_node.gait import gait_for_speed, load_hand_tuned_gaits
+from gait_policy_node.rollout import ramp_profile, run_with_late_commands
+
+SPEED = 1.5  # [m/s]
+FAULT_AT = 3.0  # [s] sim time: 1.5 s of ramp, 1.5 s of steady trot
+HOLD = 3.0  # [s] the fault lasts this long; surviving it is passing
+STALL_EVERY = 0.5  # [s] mean time between stalls (uniform 0.5x-1.5x, seeded)
+
+
+def run(mpc_period: int, force_weight: float, latency: float = 0.0, stall: float = 0.0) -> float | None:
+    """Sim time [s] of the fall, or None if the robot is up at FAULT_AT + HOLD."""
+    base = load_controller_config()
+    config = dataclasses.replace(base, mpc_period_steps=mpc_period,
+                                 mpc=dataclasses.replace(base.mpc, force_weight=force_weight))
+    gaits = load_hand_tuned_gaits()
+    return run_with_late_commands(lambda t, c: gait_for_speed(c.vx, gaits), ramp_profile(SPEED), FAULT_AT + HOLD,
+                                  controller_config=config, fault_at=FAULT_AT, latency=latency, stall=stall,
+                                  stall_every=STALL_EVERY)
+
+
+def sweep(title: str, rows: list[tuple[int, float]], values_ms: list[float], kind: str) -> dict:
+    """One table: rows are (MPC period, force weight), columns the fault sizes; cells 'up' or the
+    fall time."""
+    print(f"\n{title}")
+    header = f"{'MPC period':<11}{'alpha':>7}" + "".join(f"{v:>10.0f}ms" for v in values_ms)
+    print(header)
+    print("-" * len(header))
+    results = {}
+    for period, force_weight in rows:
+        falls = {}
+        cells = f"{period:<11}{force_weight:>7.0e}"
+        for value in values_ms:
+            fell = run(period, force_weight, **{kind: value / 1000.0})
+            falls[f"{value / 1000.0:g}"] = fell
+            cells += f"{'up' if fell is None else f'fell {fell:.2f}':>12}"
+            print(f"\r{cells}", end="", flush=True)
+        print()
+        survived = [float(v) for v, fell in falls.items() if fell is None]
+        results[f"mpc_period_{period}_steps_force_weight_{force_weight:g}"] = {
+            "fall_time_s_by_fault_s": falls, "largest_survived_s": max(survived) if survived else None}
+    return results
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--periods", default="1,5", help="MPC periods [control steps], comma-separated")
+    parser.add_argument("--force-weights", default="1e-6,3e-5", help="MPC force weights (alpha), comma-separated")
+    parser.add_argument("--latencies-ms", default="0,16,20,24,30", help="sustained command latencies [ms]")
+    parser.add_argument("--stalls-ms", default="20,40,60", help="controller stalls [ms]")
+    args = parser.parse_args()
+
+    def numbers(text: str, name: str, low: float, high: float, cast=float) -> list:
+        try:
+            values = [cast(v) for v in text.split(",") if v.strip()]
+        except ValueError:
+            parser.error(f"{name}: comma-separated numbers, got {text!r}")
+        if not values or any(not low <= v <= high for v in values):
+            parser.error(f"{name}: each value must be in [{low}, {high}], got {text!r}")
+        return values
+
+    periods = numbers(args.periods, "--periods", 1, 25, int)
+    force_weights = numbers(args.force_weights, "--force-weights", 1e-9, 1.0)
+    rows = [(period, weight) for period in periods for weight in force_weights]
+    latencies = numbers(args.latencies_ms, "--latencies-ms", 0.0, 100.0)
+    stalls = numbers(args.stalls_ms, "--stalls-ms", 0.0, 100.0)
+    print(f"rapid trot ramped to {SPEED} m/s; fault from {FAULT_AT} s for {HOLD} s; 'up' = survived")
+    results = {
+        "speed_m_per_s": SPEED, "fault_duration_s": HOLD,
+        "sustained_command_latency": sweep("Sustained command latency (every command this late):",
+                                           rows, latencies, "latency"),
+        "controller_stalls": sweep(f"Controller stalls (about every {STALL_EVERY} s, motors hold the last command):",
+                                   rows, stalls, "stall"),
+    }
+    print(json.dumps(results))
+
+
+if __name__ == "__main__":
+    main()
