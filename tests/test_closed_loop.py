@@ -16,6 +16,7 @@ from a1_common.config import ConfigError, config_dir, load_node_parameters
 from convex_mpc_node.controller import (
     MAX_CATCH_UP,
     NODE_ONLY_PARAMETERS,
+    ControllerConfig,
     Observation,
     VelocityCommand,
     controller_config_from_parameters,
@@ -121,7 +122,7 @@ def test_mpc_every_third_step_still_trots_and_resolves_on_contact_changes():
     assert stopgaps == 0  # solved in the step: every plan is for the contacts of its step
 
 
-def realtime_controller_config():
+def realtime_controller_config() -> ControllerConfig:
     """config/convex_mpc_realtime.yaml over convex_mpc.yaml: what realtime graphs run."""
     params = {**load_node_parameters(CONFIG / "convex_mpc.yaml", "convex_mpc"),
               **load_node_parameters(CONFIG / "convex_mpc_realtime.yaml", "convex_mpc")}
@@ -147,8 +148,8 @@ def test_realtime_controller_settings_walk_with_the_mpc_in_a_worker_process():
 def test_realtime_force_weight_walks_through_20_ms_of_command_latency():
     """Realtime commands arrive late. With the realtime settings' MPC force weight and period (solved
     in the step here, so the run is deterministic) a 1.5 m/s trot stays up with every command 20 ms
-    late for 3 s; with the lockstep file's force weight at the same period it falls
-    (benchmarks/delay_margin.py sweeps the margin)."""
+    late for 3 s; with the lockstep file's force weight at the same period it falls, which shows
+    the fault bites (benchmarks/delay_margin.py sweeps the margin)."""
     realtime = dataclasses.replace(realtime_controller_config(), mpc_async=False)
     lockstep_weight = dataclasses.replace(realtime, mpc=load_controller_config().mpc)
     assert realtime.mpc.force_weight > lockstep_weight.mpc.force_weight

@@ -2,7 +2,8 @@
 
 The same classes the nodes wrap (A1Sim, LocomotionController) run here step by step at 500 Hz;
 the gait comes from a schedule evaluated at 20 Hz, as the gait policy node would publish it. The
-trainer, the evaluation tools, the tests and the benchmarks all run through ``run_closed_loop``.
+trainer, the evaluation tools, the tests and the benchmarks all run through ``run_closed_loop``,
+or ``run_with_late_commands`` to measure what late commands do.
 """
 
 from __future__ import annotations
@@ -107,16 +108,15 @@ class ClosedLoop:
         self.truth = self.sim.ground_truth()
         self.estimated_velocity = np.zeros(3)  # world [m/s], what the last estimator update gave
         self.step_times = (0.0, 0.0, 0.0)  # [s] wall: estimator, controller, physics of the last step
-        self._estimated_at = 0.0
+        self._estimated_at = self._simulated_at = 0.0  # perf_counter marks for step_times
 
     def step(self, command: VelocityCommand) -> None:
         """Estimate, control and simulate one control period; readings and truth are then current."""
         t0 = time.perf_counter()
-        joint_command, t1 = self.control(command), self._estimated_at
+        joint_command = self.control(command)
         t2 = time.perf_counter()
         self.actuate(joint_command)
-        t3 = time.perf_counter()
-        self.step_times = (t1 - t0, t2 - t1, t3 - t2)
+        self.step_times = (self._estimated_at - t0, t2 - self._estimated_at, self._simulated_at - t2)
 
     def control(self, command: VelocityCommand, elapsed: float | None = None) -> JointCommand:
         """The estimator's update and the controller's joint command for the current readings
@@ -133,6 +133,7 @@ class ClosedLoop:
     def actuate(self, joint_command: JointCommand) -> None:
         """Simulate one control period with ``joint_command`` on the motors."""
         self.readings = self.sim.step(joint_command)
+        self._simulated_at = time.perf_counter()
         self.truth = self.sim.ground_truth()
 
     @property
@@ -211,27 +212,33 @@ def run_with_late_commands(schedule: GaitSchedule, profile: SpeedProfile, durati
     loop = ClosedLoop(schedule(0.0, profile(0.0)), controller_config=controller_config)
     try:
         dt = loop.sim.config.time_step
-        delay_steps = round(latency / dt)
-        steps_per_policy = round(POLICY_PERIOD / dt)
+        delay_steps, stall_steps = round(latency / dt), round(stall / dt)
+        for name, value, steps in (("latency", latency, delay_steps), ("stall", stall, stall_steps)):
+            if not 0.0 <= value <= 1.0 or abs(steps * dt - value) > 1e-9:
+                raise ValueError(f"{name} must be a multiple of the {dt} s time step in [0, 1] s, got {value}")
+        if delay_steps and stall_steps:
+            raise ValueError("latency and stall are separate faults: set one of them")
         rng = np.random.default_rng(seed)
         next_stall = fault_at + stall_every * rng.uniform(0.0, 1.0)
+        next_policy = 0.0
         in_flight: collections.deque[JointCommand] = collections.deque()
         applied = None
-        last_control_time = None
+        last_control_step = None
         k = 0
         while k * dt < duration:
             t = k * dt
             command = profile(t)
-            if k % steps_per_policy == 0:
+            if t >= next_policy - 1e-9:  # by time: a stall must not skip the 20 Hz gait update
                 loop.controller.set_gait(schedule(t, command))
+                next_policy += POLICY_PERIOD
             held_steps = 1
-            if stall > 0.0 and t >= next_stall:
+            if stall_steps and t >= next_stall:
                 next_stall = t + stall + stall_every * rng.uniform(0.5, 1.5)
-                held_steps = round(stall / dt)
+                held_steps = stall_steps
             else:
-                now = loop.readings.time
-                in_flight.append(loop.control(command, None if last_control_time is None else now - last_control_time))
-                last_control_time = now
+                missed = last_control_step is not None and k - last_control_step > 1
+                in_flight.append(loop.control(command, (k - last_control_step) * dt if missed else None))
+                last_control_step = k
                 if t < fault_at or len(in_flight) > delay_steps:
                     applied = in_flight.popleft()
             for _ in range(held_steps):
