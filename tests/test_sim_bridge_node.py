@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from a1_common.command import JointCommand
 from a1_common.config import ConfigError
+from a1_common.files import TEMPORARY_MARK
 from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
 from a1_sim_bridge.joint_hold_node import JointHoldNode
 from a1_sim_bridge.node import CONTROL_QOS, SimBridgeNode
@@ -191,7 +192,7 @@ def test_flight_recorder_writes_the_seconds_before_a_fall(rclpy_context, tmp_pat
     # test's executor may delay by some steps: the bound after the timeout is another test's.
     assert np.all(data["damping"][age <= 0.05] == 0) and age[damped[0]] > 0.05
     assert np.all(data["damping"][damped[0]:] == 1)
-    assert not any(tmp_path.glob("*.tmp"))  # written atomically
+    assert not any(tmp_path.glob(f".*{TEMPORARY_MARK}*"))  # written atomically, the temporary file gone
 
 
 def test_flight_recorder_ring_and_file_checks(tmp_path):

@@ -10,12 +10,11 @@ z up) for positions, base frame for body velocities.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from a1_common.config import ConfigError, require_range
+from a1_common.files import write_npz_atomically
 
 # Recorded per step: name -> width. The names carry their units.
 FIELDS = {
@@ -69,15 +68,7 @@ class FlightRecorder:
     def save(self, path: Path) -> Path:
         """Write the window to ``path`` (.npz) atomically: a reader never sees half a file."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **self.window())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        write_npz_atomically(path, self.window())
         return path
 
 

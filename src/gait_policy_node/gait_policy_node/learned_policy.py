@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 from a1_common.config import ConfigError
+from a1_common.files import TEMPORARY_MARK, write_npz_atomically
 from convex_mpc_node.gait import TWO_PI, GaitParams
 
 from gait_policy_node.env import OBSERVATION_SIZES
@@ -33,7 +34,6 @@ ACTION_SIZE = 8  # f, 3 x sin, 3 x cos, p_swing
 FORMAT_VERSION = 1
 MAX_NPZ_BYTES = 1 << 30  # uncompressed size read_npz accepts by default (training checkpoints)
 MAX_POLICY_BYTES = 64 << 20  # a policy file: the largest network (4096 hidden units) needs about 2 MB
-TEMPORARY_MARK = ".tmp-"  # write_npz_atomically's temporary file: .<name>.tmp-<pid> beside <name>
 VALUE_BOUND = 1e6  # |weights|, |obs_mean| and 1 / obs_std in a policy file (trained ones are O(1))
 
 
@@ -133,20 +133,6 @@ def save_policy(path: str | os.PathLike, policy: NetworkPolicy, config: TrainCon
         "config_hash": np.array(config.policy_hash()), "iteration": np.array(iteration),
     }
     write_npz_atomically(path, arrays)
-
-
-def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """np.savez into ``path`` so that a crash at any moment leaves the old file or the new one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}{TEMPORARY_MARK}{os.getpid()}")
-    try:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def remove_stale_temporaries(folder: Path) -> list[Path]:
