@@ -2,7 +2,7 @@
 # Bring up the A1 stack: a bridge to the robot, state estimator, convex MPC controller, gait policy.
 #
 # Usage: scripts/bringup.sh [--world flat|step|rough|soft|slope] [--clock lockstep|realtime]
-#                           [--policy scheduled|walk|slow_trot|rapid_trot|fly_trot|<file>.npz]
+#                           [--policy learned|scheduled|walk|slow_trot|rapid_trot|fly_trot|<file>.npz]
 #                           [--bridge sim|hardware|virtual]
 # --bridge: sim (default) = the PyBullet sim bridge; hardware = the real A1 over its low-level UDP
 #   protocol (config/a1_hw_bridge.yaml, realtime only; read docs/hardware.md first); virtual = the
@@ -35,11 +35,7 @@ if [ "$BRIDGE" = hardware ]; then
   [ "$CLOCK" = realtime ] || { echo "bringup.sh: --bridge hardware needs --clock realtime (a real robot does not wait for the controller)" >&2; exit 2; }
   [ "$WORLD_GIVEN" = 0 ] || { echo "bringup.sh: --world applies to --bridge sim and virtual, not to the real robot" >&2; exit 2; }
 fi
-case "$POLICY" in
-  *.npz) [ -f "$POLICY" ] || { echo "bringup.sh: --policy file '$POLICY' does not exist" >&2; exit 2; }
-         POLICY="$(cd "$(dirname "$POLICY")" && pwd)/$(basename "$POLICY")" ;;  # nodes run elsewhere
-  *) check_choice bringup.sh --policy "$POLICY" scheduled walk slow_trot rapid_trot fly_trot ;;
-esac
+resolve_policy bringup.sh "$POLICY"
 # shellcheck disable=SC1091
 source "$ROOT/scripts/env.sh"
 LOGDIR="$ROOT/log/bringup/$(date +%Y%m%d-%H%M%S)"

@@ -3,7 +3,7 @@
 # speed profile (0 -> 2.5 m/s at 1 m/s^2, then hold), and report.
 #
 # Usage: scripts/demo.sh [--world flat|step|rough|soft|slope] [--duration SECONDS] [--clock lockstep|realtime]
-#                        [--policy scheduled|walk|slow_trot|rapid_trot|fly_trot]
+#                        [--policy learned|scheduled|walk|slow_trot|rapid_trot|fly_trot|<file>.npz]
 #
 # Starts sim_bridge, state_estimator, convex_mpc and gait_policy (scripts/lib/nodes.sh), the
 # velocity_command ramp and demo_report, which after --duration seconds of sim time (default 20)
@@ -27,7 +27,7 @@ done
 source "$ROOT/scripts/lib/nodes.sh"
 check_choice demo.sh --world "$WORLD" flat step rough soft slope
 check_choice demo.sh --clock "$CLOCK" lockstep realtime
-check_choice demo.sh --policy "$POLICY" scheduled walk slow_trot rapid_trot fly_trot
+resolve_policy demo.sh "$POLICY"
 [[ "$DURATION" =~ ^[0-9]+([.][0-9]+)?$ ]] && awk "BEGIN{exit !($DURATION > 0 && $DURATION <= 3600)}" \
   || { echo "demo.sh: --duration must be a number of seconds in (0, 3600], got '$DURATION'" >&2; exit 2; }
 

@@ -17,6 +17,7 @@ from gait_policy_node.gait_analysis import classify_gait, transition_speeds
 from gait_policy_node.learned_policy import NetworkPolicy, decode_action, load_policy, save_policy
 from gait_policy_node.policy import make_policy
 from gait_policy_node.rollout_workers import run_episode
+from gait_policy_node.sweep_gaits import compare_with_hand_tuned
 from gait_policy_node.train_config import (
     ActionConfig,
     EnvConfig,
@@ -248,6 +249,22 @@ def test_transition_speeds_from_a_gait_schedule():
     found = transition_speeds(data)
     assert [(a, b) for _, a, b in found] == [("walk", "trot"), ("trot", "fly trot")]
     assert [s for s, _, _ in found] == pytest.approx([0.8, 2.0])
+
+
+def test_policy_is_compared_with_the_cheapest_hand_tuned_gait_that_tracks():
+    def run(name, speed, cot, error, fell=False, f=2.0):
+        return {"name": name, "target_speed": speed, "cost_of_transport": cot, "speed_error": error,
+                "fell": fell, "frequency": f}
+
+    best = [run("walk", 0.5, 1.0, 0.02), run("slow_trot", 0.5, 1.1, 0.01), run("pi", 0.5, 1.05, 0.03),
+            # the cheapest hand-tuned run at 1.0 m/s lags by 10 %: the rival is the one that tracks
+            run("walk", 1.0, 0.5, 0.10), run("slow_trot", 1.0, 0.8, 0.02, f=3.0), run("pi", 1.0, 0.7, 0.01),
+            run("fly_trot", 2.5, 0.6, 0.01), run("pi", 2.5, 0.5, 0.08),  # cheaper but not tracking
+            run("walk", 2.0, 0.9, 0.0, fell=True), run("pi", 2.0, 0.9, 0.01)]  # no rival tracks
+    rows = {r["target_speed"]: r for r in compare_with_hand_tuned(best, ["walk", "slow_trot", "fly_trot"], ["pi"])}
+    assert [(s, r["best_gait"], r["wins"]) for s, r in sorted(rows.items())] == [
+        (0.5, "walk", False), (1.0, "slow_trot", True), (2.0, "", True), (2.5, "fly_trot", False)]
+    assert rows[1.0]["best_frequency"] == 3.0 and rows[1.0]["best_cost_of_transport"] == 0.8
 
 
 # --- environment ----------------------------------------------------------------------------

@@ -197,6 +197,17 @@ def test_ars_trains_in_process(tmp_path):
     assert np.any(trainer.optimizer.mean != 0)
 
 
+def test_log_records_the_workers_and_resumes_a_run_logged_without_them(tmp_path):
+    config = load_train_config(overrides=[*TINY, "workers.backend=serial"])
+    Trainer(config, tmp_path).run(1)
+    # A run folder from before the workers column: its checkpoint's log has one column fewer.
+    data = read_npz(tmp_path / "checkpoint.npz", "checkpoint")
+    np.savez(tmp_path / "checkpoint.npz", **{**data, "log": data["log"][:, :-1]})
+    Trainer(config, tmp_path).run(2)
+    with (tmp_path / "log.csv").open() as fh:
+        assert [row["workers"] for row in csv.DictReader(fh)] == ["", "1"]  # unknown, then this session's
+
+
 @pytest.mark.slow
 def test_backends_agree_for_the_same_seed():
     pytest.importorskip("ray")

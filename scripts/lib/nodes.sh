@@ -12,6 +12,18 @@ check_choice() {  # <script> <option> <value> <allowed...>: exit 2 naming the op
   exit 2
 }
 
+GAIT_POLICIES=(learned scheduled walk slow_trot rapid_trot fly_trot)  # gait_policy's named policies
+
+resolve_policy() {  # <script> <policy>: set POLICY to a named policy or the absolute path of a .npz, else exit 2
+  local script=$1
+  POLICY=$2
+  case "$POLICY" in
+    *.npz) [ -f "$POLICY" ] || { echo "$script: --policy file '$POLICY' does not exist" >&2; exit 2; }
+           POLICY="$(cd "$(dirname "$POLICY")" && pwd)/$(basename "$POLICY")" ;;  # nodes run elsewhere
+    *) check_choice "$script" --policy "$POLICY" "${GAIT_POLICIES[@]}" ;;
+  esac
+}
+
 _node_command() {  # <pkg> <exe>: set the array _GS_CMD to the command that runs a node
   local pkg=$1 exe=$2
   if command -v ros2 >/dev/null 2>&1; then

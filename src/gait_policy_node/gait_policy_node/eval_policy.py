@@ -4,12 +4,13 @@
                 [--acceleration A] [--duration S] [--world flat|step|rough|soft|slope] [--seed N]
                 [--out DIR] [--format csv|npz]
 
-POLICY is a policy file from train_es (.npz), ``scheduled`` (the hand-tuned gaits by speed) or a
-hand-tuned gait name (walk, slow_trot, rapid_trot, fly_trot). The run uses the policy file's
-training config (observation, reward, controller inputs) or, for hand-tuned gaits,
-config/train_es.yaml; the options above replace its profile and world. Writes per control step
-data (steps.csv or steps.npz), the gait diagram (gait_diagram.png) and summary.json into ``--out``
-(default log/eval/<policy>-<time>/) and prints per speed band: tracking error, power, cost of
+POLICY is ``learned`` (the trained policy this package ships), a policy file from train_es (.npz),
+``scheduled`` (the hand-tuned gaits by speed) or a hand-tuned gait name (walk, slow_trot,
+rapid_trot, fly_trot). The run uses the policy file's training config (observation, reward,
+controller inputs) or, for hand-tuned gaits, config/train_es.yaml; the options above replace its
+profile and world. Writes per control step data (steps.csv or steps.npz), the gait diagram
+(gait_diagram.png) and summary.json into ``--out`` (default log/eval/<policy>-<time>/) and prints
+per speed band: tracking error, power, cost of
 transport, f, p_swing, offsets and the gait class, then the gait transitions.
 """
 
@@ -30,7 +31,7 @@ from convex_mpc_node.gait import GaitParams
 
 from gait_policy_node.env import GaitEnv
 from gait_policy_node.gait_analysis import format_band_table, plot_gait_diagram, summarise_bands, transition_speeds
-from gait_policy_node.learned_policy import load_policy
+from gait_policy_node.learned_policy import SHIPPED_POLICY, load_policy
 from gait_policy_node.policy import make_policy
 from gait_policy_node.rollout import POLICY_PERIOD
 from gait_policy_node.rollout_workers import EpisodeStats, run_episode
@@ -41,7 +42,7 @@ ObservationPolicy = Callable[[np.ndarray], GaitParams]
 
 def resolve_policy(spec: str, config_path: str | None = None) -> tuple[ObservationPolicy, TrainConfig]:
     """A policy on the env's observation, and the training config to evaluate it with."""
-    if spec.endswith(".npz"):
+    if spec == SHIPPED_POLICY or spec.endswith(".npz"):
         network, config = load_policy(spec)
         return network, config
     hand_tuned = make_policy(spec)
@@ -88,7 +89,7 @@ def write_steps(path: Path, data: dict[str, np.ndarray]) -> None:
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="eval_policy", description=__doc__.split("\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("policy", help="policy .npz | scheduled | walk | slow_trot | rapid_trot | fly_trot")
+    parser.add_argument("policy", help="learned | policy .npz | scheduled | walk | slow_trot | rapid_trot | fly_trot")
     parser.add_argument("--profile", choices=("ramp", "constant", "steps", "random"))
     parser.add_argument("--speed", type=float, help="constant profile speed [m/s]")
     parser.add_argument("--target-speed", type=float, help="ramp end speed [m/s]")

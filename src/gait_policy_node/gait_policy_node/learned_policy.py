@@ -35,6 +35,9 @@ FORMAT_VERSION = 1
 MAX_NPZ_BYTES = 1 << 30  # uncompressed size read_npz accepts by default (training checkpoints)
 MAX_POLICY_BYTES = 64 << 20  # a policy file: the largest network (4096 hidden units) needs about 2 MB
 VALUE_BOUND = 1e6  # |weights|, |obs_mean| and 1 / obs_std in a policy file (trained ones are O(1))
+# The trained policy this package ships (package data, installed with it), selected by this name.
+SHIPPED_POLICY = "learned"
+SHIPPED_POLICY_FILE = Path(__file__).with_name("policies") / "learned_gait.npz"
 
 
 def decode_action(a: np.ndarray, cfg: ActionConfig) -> GaitParams:
@@ -135,6 +138,16 @@ def save_policy(path: str | os.PathLike, policy: NetworkPolicy, config: TrainCon
     write_npz_atomically(path, arrays)
 
 
+def policy_file(spec: str | os.PathLike) -> Path:
+    """The file a policy spec names: ``learned`` is the shipped policy, anything else a path."""
+    if str(spec) != SHIPPED_POLICY:
+        return Path(spec)
+    if not SHIPPED_POLICY_FILE.is_file():
+        raise ConfigError(f"policy '{SHIPPED_POLICY}': the shipped policy file {SHIPPED_POLICY_FILE} is missing "
+                          "(reinstall gait_policy_node, or pass a .npz from train_es)")
+    return SHIPPED_POLICY_FILE
+
+
 def remove_stale_temporaries(folder: Path) -> list[Path]:
     """Delete the temporary files write_npz_atomically left in ``folder``; returns them.
 
@@ -207,7 +220,9 @@ def _field(data: dict, key: str, path, kind: str, shape: tuple | None = None) ->
 
 
 def load_policy(path: str | os.PathLike) -> tuple[NetworkPolicy, TrainConfig]:
-    """Read and check a policy file; returns the policy and the training config it was made with."""
+    """Read and check a policy file (or the shipped one, ``learned``); returns the policy and the
+    training config it was made with."""
+    path = policy_file(path)
     data = read_npz(path, "policy file", MAX_POLICY_BYTES)
     version = int(_field(data, "format_version", path, "i", ()))
     if version != FORMAT_VERSION:

@@ -14,7 +14,7 @@ import numpy as np
 from a1_common.config import ConfigError
 from convex_mpc_node.gait import GaitParams, gait_for_speed, load_hand_tuned_gaits
 
-from gait_policy_node.learned_policy import load_policy
+from gait_policy_node.learned_policy import SHIPPED_POLICY, load_policy
 
 
 class GaitPolicy(Protocol):
@@ -42,7 +42,7 @@ class SpeedScheduledGaits:
 
 
 class LearnedGait:
-    """A policy file from train_es, on the paper's observation [v_des_x, v_x, v_y, v_z]."""
+    """A policy file from train_es (or the shipped one), on the paper's observation [v_des_x, v_x, v_y, v_z]."""
 
     def __init__(self, path: str) -> None:
         self.network, _ = load_policy(path)
@@ -56,12 +56,14 @@ class LearnedGait:
 
 
 def make_policy(spec: str) -> GaitPolicy:
-    """``scheduled`` | a hand-tuned gait name from config/gaits.yaml | a learned policy file."""
+    """``learned`` (the shipped trained policy) | a learned policy file | ``scheduled`` | a hand-tuned
+    gait name from config/gaits.yaml."""
     gaits = load_hand_tuned_gaits()
     if spec == "scheduled":
         return SpeedScheduledGaits(gaits)
     if spec in gaits:
         return FixedGait(gaits[spec])
-    if spec.endswith(".npz"):
+    if spec == SHIPPED_POLICY or spec.endswith(".npz"):
         return LearnedGait(spec)
-    raise ConfigError(f"policy must be 'scheduled', one of {sorted(gaits)}, or a .npz policy file; got {spec!r}")
+    raise ConfigError(f"policy must be '{SHIPPED_POLICY}', 'scheduled', one of {sorted(gaits)}, or a .npz policy "
+                      f"file; got {spec!r}")

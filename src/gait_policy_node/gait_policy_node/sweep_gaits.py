@@ -36,6 +36,7 @@ from gait_policy_node.train_config import ProfileConfig, TrainConfig, load_train
 
 MEASURE_WINDOW = 3.0  # [s] at the end of each episode
 ACCELERATION = 1.0  # [m/s^2]
+TRACKING_TOLERANCE = 0.05  # relative speed error of a run that counts as tracking its speed
 
 _ENV: GaitEnv | None = None
 
@@ -115,6 +116,30 @@ def best_per_speed(results: list[dict]) -> list[dict]:
     return list(best.values())
 
 
+def compare_with_hand_tuned(best: list[dict], gaits: list[str], policies: list[str],
+                            tolerance: float = TRACKING_TOLERANCE) -> list[dict]:
+    """Per policy and speed: the policy's CoT against the lowest CoT of a hand-tuned gait (at its best
+    frequency) that stayed up and tracked within ``tolerance``; ``wins`` when the policy also tracks
+    within it and its CoT is no higher."""
+    cell = {(r["name"], r["target_speed"]): r for r in best}
+    out = []
+    for name in policies:
+        for speed in sorted({r["target_speed"] for r in best if r["name"] == name}):
+            mine = cell[(name, speed)]
+            rivals = [cell[(g, speed)] for g in gaits if (g, speed) in cell]
+            rivals = [r for r in rivals if not r["fell"] and r["speed_error"] <= tolerance]
+            rival = min(rivals, key=lambda r: r["cost_of_transport"], default=None)
+            tracks = not mine["fell"] and mine["speed_error"] <= tolerance
+            nan = float("nan")
+            out.append({"policy": name, "target_speed": speed, "cost_of_transport": mine["cost_of_transport"],
+                        "speed_error": mine["speed_error"], "fell": mine["fell"],
+                        "best_gait": rival["name"] if rival else "",
+                        "best_frequency": rival["frequency"] if rival else nan,
+                        "best_cost_of_transport": rival["cost_of_transport"] if rival else nan,
+                        "wins": tracks and (rival is None or mine["cost_of_transport"] <= rival["cost_of_transport"])})
+    return out
+
+
 def plot_cost_of_transport(rows: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -152,7 +177,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--gaits", nargs="+", default=["walk", "slow_trot", "rapid_trot", "fly_trot"])
     parser.add_argument("--speeds", nargs="+", type=float, default=[0.3, 0.5, 1.0, 1.5, 2.0, 2.5])
     parser.add_argument("--frequencies", nargs="+", type=float, default=[1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0])
-    parser.add_argument("--policy", action="append", default=[], help="learned policy .npz (repeatable)")
+    parser.add_argument("--policy", action="append", default=[],
+                        help="learned policy .npz, or 'learned' for the shipped one (repeatable)")
     parser.add_argument("--hold", type=float, default=4.0, help="seconds at the target speed (>= 3)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--config", help="reward and env config (default config/train_es.yaml)")
@@ -193,6 +219,13 @@ def main(argv: list[str] | None = None) -> int:
                 f" [{r['frequency']:.1f}]" if not np.isnan(r["frequency"]) else "")
             line += f"{text:>14}"
         print(line)
+    policies = [Path(p).stem for p in args.policy]
+    for r in compare_with_hand_tuned(best, args.gaits, policies):
+        rival = (f"{r['best_gait']} [{r['best_frequency']:.1f} Hz] CoT {r['best_cost_of_transport']:.3f}"
+                 if r["best_gait"] else f"no hand-tuned gait tracks within {100 * TRACKING_TOLERANCE:.0f} %")
+        mine = "fell" if r["fell"] else f"CoT {r['cost_of_transport']:.3f}, error {100 * r['speed_error']:.1f} %"
+        print(f"{r['policy']} at {r['target_speed']:.1f} m/s: {mine}; best hand-tuned: {rival} -> "
+              f"{'at most the best' if r['wins'] else 'NOT at most the best (or not tracking)'}")
     print(f"wrote {out}/sweep.csv, best.csv, cost_of_transport.png")
     return 0
 

@@ -44,7 +44,7 @@ from gait_policy_node.train_config import TrainConfig, load_train_config
 
 LOG_COLUMNS = ("iteration", "wall_time_s", "episodes", "policy_steps", "mean_return", "std_return", "max_return",
                "min_return", "falls", "step_size", "eval_return", "eval_speed_error", "eval_cost_of_transport",
-               "eval_fell")
+               "eval_fell", "workers")
 EVAL_SEED = 0
 # What --resume may change: how and how long to run, not what is learned.
 RESUMABLE_OVERRIDES = ("workers.", "trainer.iterations", "trainer.checkpoint_every", "trainer.eval_every")
@@ -86,7 +86,9 @@ class Trainer:
         history = np.asarray(data["return_history"], dtype=float)
         self.optimizer = restore(self.policy.num_params, self.config.trainer, history)
         self.return_history = list(history)
-        self.rows = np.asarray(data["log"], dtype=float).tolist()
+        rows = np.asarray(data["log"], dtype=float)
+        missing = len(LOG_COLUMNS) - rows.shape[1] if rows.ndim == 2 else 0  # runs from before "workers"
+        self.rows = np.pad(rows, ((0, 0), (0, max(missing, 0))), constant_values=np.nan).tolist()
         self.best_eval = float(data["best_eval_return"])
         self.elapsed = float(data["wall_time_s"])
 
@@ -107,6 +109,11 @@ class Trainer:
         self._write_log()
         plot_learning_curve(self.rows, self.run_dir / "learning_curve.png", self.config.trainer.algorithm)
 
+    def _workers(self) -> int:
+        """Rollout processes of this session (a resumed run may use another machine)."""
+        w = self.config.workers
+        return 1 if w.backend == "serial" else w.resolved_count()
+
     def _wall_time(self) -> float:
         return self.elapsed + (time.monotonic() - self._session_start)
 
@@ -115,7 +122,7 @@ class Trainer:
         writer = csv.writer(buf)
         writer.writerow(LOG_COLUMNS)
         for row in self.rows:
-            writer.writerow([int(v) if k in ("iteration", "episodes", "policy_steps", "falls") else
+            writer.writerow([int(v) if k in ("iteration", "episodes", "policy_steps", "falls") and np.isfinite(v) else
                              ("" if np.isnan(v) else f"{v:.6g}") for k, v in zip(LOG_COLUMNS, row, strict=True)])
         tmp = self.run_dir / ".log.csv.tmp"
         tmp.write_text(buf.getvalue())
@@ -168,7 +175,7 @@ class Trainer:
         self.rows.append([it + 1, self._wall_time(), len(results), sum(r.policy_steps for r in results),
                           returns.mean(), returns.std(), returns.max(), returns.min(), sum(r.fell for r in train),
                           self.optimizer.step_size, ev.episode_return if ev else nan, ev.speed_error if ev else nan,
-                          ev.cost_of_transport if ev else nan, float(ev.fell) if ev else nan])
+                          ev.cost_of_transport if ev else nan, float(ev.fell) if ev else nan, self._workers()])
         postfix = {"best": f"{returns.max():.1f}", "mean": f"{returns.mean():.1f}"}
         if ev is not None:
             postfix["eval"] = f"{ev.episode_return:.1f}"
@@ -177,6 +184,7 @@ class Trainer:
 
 
 def plot_learning_curve(rows: list[list[float]], path: Path, algorithm: str) -> None:
+    """Return against iterations and against wall time [h], with the rollout workers of each session."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -186,19 +194,22 @@ def plot_learning_curve(rows: list[list[float]], path: Path, algorithm: str) -> 
         return
     data = np.array(rows, dtype=float)
     col = {k: i for i, k in enumerate(LOG_COLUMNS)}
-    it = data[:, col["iteration"]]
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    ax.fill_between(it, data[:, col["min_return"]], data[:, col["max_return"]], alpha=0.2,
-                    label="population min-max")
-    ax.plot(it, data[:, col["mean_return"]], label="population mean")
     ev = ~np.isnan(data[:, col["eval_return"]])
-    if ev.any():
-        ax.plot(it[ev], data[ev, col["eval_return"]], "o-", label="mean policy (evaluation)")
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("episode return")
-    ax.set_title(f"{algorithm}: learning curve")
-    ax.legend(loc="lower right")
-    ax.grid(alpha=0.3)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+    workers = sorted({int(w) for w in data[:, col["workers"]] if np.isfinite(w)})
+    for ax, x, label in ((axes[0], data[:, col["iteration"]], "iteration"),
+                         (axes[1], data[:, col["wall_time_s"]] / 3600.0,
+                          "wall time [h]" + (f" ({'/'.join(map(str, workers))} rollout workers)" if workers else ""))):
+        ax.fill_between(x, data[:, col["min_return"]], data[:, col["max_return"]], alpha=0.2,
+                        label="population min-max")
+        ax.plot(x, data[:, col["mean_return"]], label="population mean")
+        if ev.any():
+            ax.plot(x[ev], data[ev, col["eval_return"]], ".-", label="mean policy (evaluation)")
+        ax.set_xlabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("episode return")
+    axes[1].legend(loc="lower right")
+    fig.suptitle(f"{algorithm}: learning curve")
     fig.tight_layout()
     tmp = path.with_name(f".{path.stem}.tmp.png")
     fig.savefig(tmp, dpi=100)
