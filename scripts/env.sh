@@ -13,6 +13,10 @@ _gs_nounset=$(set +o | grep nounset); set +u
 # shellcheck disable=SC1091
 source "$_gs_root/install/setup.bash"
 eval "$_gs_nounset"
+# What a sourced ROS 2 install defines (its ros_environment package) and the PyPI wheels leave out:
+# `ros2 doctor` and tools that branch on the distro read them. A full install's own values stay.
+export ROS_VERSION="${ROS_VERSION:-2}" ROS_PYTHON_VERSION="${ROS_PYTHON_VERSION:-3}" ROS_DISTRO="${ROS_DISTRO:-jazzy}"
+[ "$ROS_DISTRO" = jazzy ] || echo "env.sh: warning: ROS_DISTRO is '$ROS_DISTRO'; this stack is built for jazzy" >&2
 export GAIT_STACK_ROOT="$_gs_root"
 # The offline tools (train_es, eval_policy, sweep_gaits, velocity_command) by name, as without ROS.
 export PATH="$_gs_root/install/gait_policy_node/lib/gait_policy_node:$PATH"

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
 from graph_helpers import PROBE_QOS, ROOT, Graph, damping_onset, run_until, set_sim_paused
 from nav_msgs.msg import Odometry
@@ -36,7 +37,9 @@ class Watcher(Node):
         self.truth: list[tuple[float, float, float]] = []  # (sim time, v_x body, z)
         self.commands: list[float] = []  # stamps of /motor_command [s]
         self.joints: list[tuple[float, np.ndarray, np.ndarray]] = []  # (t, velocity, effort)
+        self.diagnostics: dict[str, list[float]] = {}  # status name -> header stamps [s]
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, reliable)
         self._pub = self.create_publisher(Twist, "/cmd_vel", reliable)
         self._last_pub = 0.0
         self.create_subscription(Odometry, "/sim/ground_truth/odom", self._on_truth, PROBE_QOS)
@@ -55,6 +58,10 @@ class Watcher(Node):
             msg.linear.x = self.speed
             self._pub.publish(msg)
             self._last_pub = time.monotonic()
+
+    def _on_diagnostics(self, m: DiagnosticArray) -> None:
+        for status in m.status:
+            self.diagnostics.setdefault(status.name, []).append(ns_from_stamp(m.header.stamp) * 1e-9)
 
     def _on_joints(self, m: JointState) -> None:
         self.joints.append((ns_from_stamp(m.header.stamp) * 1e-9, np.array(m.velocity), np.array(m.effort)))
@@ -93,6 +100,12 @@ def test_cmd_vel_1_mps_walks_within_10_percent(graph, controller_params):
     assert watcher.lowest() > 0.18, "fell"
     # Stand-up 1 s, then 1 m/s^2 to 1.0 m/s: 5 s into walking is about t = 6..7 s.
     assert watcher.mean_speed(6.0, 7.0) == pytest.approx(1.0, rel=0.10)
+    # Every node reports on /diagnostics, stamped on its (sim) clock.
+    nodes = {"a1_sim_bridge", "convex_mpc", "gait_policy"} | ({"state_estimator"} if not controller_params else set())
+    assert nodes <= set(watcher.diagnostics), watcher.diagnostics
+    for name in nodes:  # (the bridge reports t = 0 until the first command starts its sim)
+        stamps = watcher.diagnostics[name]
+        assert 0.0 < stamps[-1] <= watcher.sim_time() + 1.0 and stamps == sorted(stamps), (name, stamps)
 
 
 @pytest.mark.ros

@@ -49,6 +49,14 @@ def test_unknown_argument(tmp_path):
     assert "--frobnicate" in result.stderr
 
 
+def test_env_sh_defines_what_a_sourced_ros_install_defines():
+    env = {k: v for k, v in os.environ.items() if k not in ("ROS_DISTRO", "ROS_VERSION", "ROS_PYTHON_VERSION")}
+    script = f'source "{ROOT}/scripts/env.sh" && echo "$ROS_DISTRO $ROS_VERSION $ROS_PYTHON_VERSION"'
+    result = subprocess.run(["bash", "-c", script], env=env, capture_output=True, text=True, timeout=60, check=False)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split("\n")[-2] == "jazzy 2 3"  # what `ros2 doctor` found unset
+
+
 @pytest.mark.parametrize("script", ["demo.sh", "test.sh", "setup.sh"])
 def test_scripts_are_valid_bash(script):
     subprocess.run(["bash", "-n", str(ROOT / "scripts" / script)], check=True)

@@ -185,6 +185,7 @@ def test_flight_recorder_writes_the_seconds_before_a_fall(rclpy_context, tmp_pat
     height = data["base_position_m"][:, 2]
     assert height[-1] < 0.18 <= height.max()
     assert data["damping"][-1] == 1 and data["damping"].sum() < len(t)  # it damped within the window
+    assert not data["commanded_damping"].any()  # the watchdog's damping: nobody commanded it
     damped = np.flatnonzero(data["damping"])
     age = data["command_age_s"]
     # The watchdog's rule, seen from the robot: never damping while the command is younger than
@@ -193,6 +194,40 @@ def test_flight_recorder_writes_the_seconds_before_a_fall(rclpy_context, tmp_pat
     assert np.all(data["damping"][age <= 0.05] == 0) and age[damped[0]] > 0.05
     assert np.all(data["damping"][damped[0]:] == 1)
     assert not any(tmp_path.glob(f".*{TEMPORARY_MARK}*"))  # written atomically, the temporary file gone
+
+
+@pytest.mark.ros
+def test_commanded_damping_is_recorded_as_damped_not_as_a_fall(rclpy_context, tmp_path):
+    """An e-stop or ``mode damping`` lays the robot down: the record is a damped_*.npz with the
+    commanded damping in it, and no fall is logged (the watchdog's damping stays a fall, above)."""
+    # Lockstep: every step waits for this test's command, so the watchdog never has to step in.
+    overrides = [Parameter("clock_mode", value="lockstep"), Parameter("lockstep_timeout", value=1.0),
+                 Parameter("settle_time", value=0.1), Parameter("flight_recorder_dir", value=str(tmp_path)),
+                 Parameter("flight_recorder_seconds", value=2.0)]
+    bridge = SimBridgeNode(context=rclpy_context, parameter_overrides=overrides)
+    listener = Node("listener", context=rclpy_context)
+    commander = listener.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(bridge)
+    executor.add_node(listener)
+    hold, damping = JointCommand.hold(bridge.sim.robot), JointCommand.damping()
+    try:
+        def command() -> bool:  # hold for 0.2 s of sim time, then damping, fresh every step
+            cmd = hold if bridge.sim.time < 0.2 else damping
+            commander.publish(motor_command_msg(cmd, stamp_from_ns(bridge.sim.steps * STEP_NS)))
+            return any(tmp_path.glob("*.npz"))
+
+        assert spin_until(executor, command, 30.0)
+    finally:
+        executor.shutdown()
+        bridge.shutdown()
+        bridge.destroy_node()
+        listener.destroy_node()
+    assert not any(tmp_path.glob("fall_*.npz"))
+    (path,) = tmp_path.glob("damped_*.npz")
+    data = flight_recorder.load(path)
+    assert data["base_position_m"][-1, 2] < 0.18 and data["commanded_damping"][-1] == 1
+    assert np.array_equal(data["commanded_damping"], data["damping"])  # the watchdog never stepped in
 
 
 def test_flight_recorder_ring_and_file_checks(tmp_path):

@@ -16,6 +16,8 @@ from contextlib import ExitStack
 from typing import Any
 
 import rclpy
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.context import Context
 from rclpy.exceptions import InvalidHandle
@@ -48,6 +50,16 @@ def declare_parameters(node, defaults: dict[str, Any]) -> dict[str, Any]:
         value = node.declare_parameter(name, default, descriptor).value
         values[name] = coerce_parameter(name, value, default)
     return values
+
+
+def diagnostic_array(node, status: DiagnosticStatus, values: dict[str, Any],
+                     stamp: Time | None = None) -> DiagnosticArray:
+    """``status`` with ``values`` as its key/value pairs, in a /diagnostics message stamped on the node's
+    clock (sim time under ``use_sim_time``), or at ``stamp`` for a node that keeps the clock itself."""
+    status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+    msg = DiagnosticArray(status=[status])
+    msg.header.stamp = stamp if stamp is not None else node.get_clock().now().to_msg()
+    return msg
 
 
 def coerce_parameter(name: str, value: Any, default: Any) -> Any:

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 from a1_common.config import parameter_defaults
-from a1_common.node_support import declare_parameters, run_node
+from a1_common.node_support import declare_parameters, diagnostic_array, run_node
 from a1_common.robot import a1
 from a1_sim_bridge.node import CONTROL_QOS
 from a1_sim_bridge.sim import SensorReadings
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -101,10 +101,7 @@ class HardwareBridgeNode(Node):
             status.level, status.message = DiagnosticStatus.WARN, "damping: no valid /motor_command"
         else:
             status.level, status.message = DiagnosticStatus.OK, "commanded"
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        msg = DiagnosticArray(status=[status])
-        msg.header.stamp = self.get_clock().now().to_msg()
-        self.pub_diag.publish(msg)
+        self.pub_diag.publish(diagnostic_array(self, status, values))
 
     def shutdown(self) -> None:
         """Stop the link thread; the last datagrams sent put the motors in damping."""

@@ -11,10 +11,10 @@ import threading
 import traceback
 
 from a1_common.config import parameter_defaults
-from a1_common.node_support import declare_parameters, run_node
+from a1_common.node_support import declare_parameters, diagnostic_array, run_node
 from a1_sim_bridge.node import CONTROL_QOS
 from a1_sim_bridge.sim import SensorNoise, SimConfig
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
@@ -77,8 +77,7 @@ class VirtualA1Node(Node):
             "commands_refused": c.commands_refused, "last_refusal": r.last_error,
             "command_loss_fallbacks": c.command_loss_fallbacks, "realtime_overruns": self.server.pacer.overruns,
         }
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        self.pub_diag.publish(DiagnosticArray(status=[status]))
+        self.pub_diag.publish(diagnostic_array(self, status, values))
 
     def shutdown(self) -> None:
         self.server.stop()

@@ -2,7 +2,9 @@
 
 Why: a fall in a realtime graph cannot be replayed (it depends on when messages arrived), and its
 cause lies in the seconds before it. The sim bridge records every step into a ring buffer (a few
-microseconds a step) and writes it to an ``.npz`` the moment the base drops below ``fall_height``.
+microseconds a step) and writes it to an ``.npz`` the moment the base drops below ``fall_height``:
+``fall_*.npz``, or ``damped_*.npz`` when the base went down under a damping the controller
+commanded while the robot was upright (an e-stop or ``mode damping``: not a fall).
 ``flight_recorder_plot`` draws such a file. Units SI; frames: world (REP-103: x forward at start,
 z up) for positions, base frame for body velocities.
 """
@@ -29,6 +31,8 @@ FIELDS = {
     "command_age_s": 1,                   # sim time from the sensors the applied command answered to
                                           # the end of this step: one time_step when it was on time
     "damping": 1,                         # 1 = the motors were in damping (watchdog or command)
+    "commanded_damping": 1,               # 1 = ... because the controller commanded it (e-stop, mode
+                                          # damping, its own fall or input checks), not the watchdog
 }
 
 

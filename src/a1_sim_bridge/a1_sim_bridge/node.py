@@ -30,8 +30,8 @@ import numpy as np
 import rclpy
 from a1_common.command import CommandWatchdog, MotorMode
 from a1_common.config import ConfigError, parameter_defaults, require_range
-from a1_common.node_support import coerce_parameter, declare_parameters, run_node
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from a1_common.node_support import coerce_parameter, declare_parameters, diagnostic_array, run_node
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -49,6 +49,7 @@ from gait_msgs.msg import FootContacts, MotorCommand
 CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 CLOCK_MODES = ("lockstep", "realtime")
+UPRIGHT_TILT = 0.3  # [rad] body tilt under which a robot stands or walks (the controller's falls start far beyond)
 NODE_PARAMETERS = {  # node-only parameters and defaults; the rest configure A1Sim
     "clock_mode": "lockstep",
     "command_timeout": 0.05,
@@ -86,6 +87,8 @@ class SimBridgeNode(Node):
         self._recorded_stamp_ns = -1
         self._fall_recorded = False  # one file per fall: re-armed when the base is up again, or on reset
         self._applied_damping = False
+        self._commanded_damping = False  # the damping applied is the controller's command, not the watchdog's
+        self._damping_began_upright: bool | None = None  # of the commanded damping in force; None: none
         self._applied_stamp_ns = -1  # stamp of the command applied in the last step (-1: none yet)
         self.dt_ns = round(self.sim.config.time_step * 1e9)
         self.joint_names = list(self.sim.robot.joint_names)
@@ -215,6 +218,7 @@ class SimBridgeNode(Node):
                     else:
                         command = self.watchdog.active(self.sim.time)
                         self._applied_damping = command.mode == MotorMode.DAMPING
+                        self._commanded_damping = self._applied_damping and not self.watchdog.in_fallback
                         self._applied_stamp_ns = self._pending_stamp_ns
                         # A missed 2 ms deadline, as the robot sees it: nothing new to apply this step.
                         self._uncommanded_steps += self.watchdog.accepted == self._accepted_at_last_step
@@ -249,12 +253,14 @@ class SimBridgeNode(Node):
         seed = coerce_parameter("seed", self.get_parameter("seed").value, 0)
         readings = self.sim.reset(world=world, seed=seed)
         self.watchdog.clear_command()
+        self._applied_damping = self._commanded_damping = False
         self._pending_stamp_ns = self._applied_stamp_ns = -1
         self._published_at.clear()
         self._lowest_base_height = float("inf")  # a fall before the reset is not this run's
         if self.recorder is not None:
             self.recorder.clear()
             self._fall_recorded = False
+            self._damping_began_upright = None
             self._recorded_stamp_ns = -1
         self._reset_requested = False
         self.get_logger().info(f"simulation reset: world={world} seed={seed}")
@@ -296,17 +302,30 @@ class SimBridgeNode(Node):
             base_velocity_body_mps=truth.base_linear_velocity_body,
             base_angular_velocity_body_radps=truth.base_angular_velocity_body,
             foot_contact=readings.foot_contact, joint_position_rad=readings.joint_position,
-            joint_torque_nm=readings.joint_torque, command_age_s=age, damping=self._applied_damping)
+            joint_torque_nm=readings.joint_torque, command_age_s=age, damping=self._applied_damping,
+            commanded_damping=self._commanded_damping)
         height = float(truth.base_position[2])
+        if not self._commanded_damping:
+            self._damping_began_upright = None
+        elif self._damping_began_upright is None:
+            x, y = truth.base_orientation[:2]
+            tilt = math.acos(min(1.0, max(-1.0, 1.0 - 2.0 * (x * x + y * y))))
+            self._damping_began_upright = tilt < UPRIGHT_TILT and height > self.fall_height + 0.05
         if height < self.fall_height and not self._fall_recorded:
             self._fall_recorded = True
-            path = Path(self.recorder_dir) / f"fall_{time.strftime('%Y%m%d_%H%M%S')}_t{truth.time:.3f}s.npz"
+            # Lying down under a damping the controller chose while the robot stood is not a fall.
+            commanded = bool(self._damping_began_upright)
+            what = "damped" if commanded else "fall"
+            path = Path(self.recorder_dir) / f"{what}_{time.strftime('%Y%m%d_%H%M%S')}_t{truth.time:.3f}s.npz"
+            log = self.get_logger().warning if commanded else self.get_logger().error
+            cause = ("base lowered under commanded damping (e-stop or mode damping), not a fall" if commanded
+                     else "fall")
             try:
                 self.recorder.save(path)
-                self.get_logger().error(f"fall (base {height:.3f} m < fall_height {self.fall_height} m) at "
-                                        f"t={truth.time:.3f} s; flight recorder: {path}")
+                log(f"{cause} (base {height:.3f} m < fall_height {self.fall_height} m) at "
+                    f"t={truth.time:.3f} s; flight recorder: {path}")
             except OSError as exc:
-                self.get_logger().error(f"fall at t={truth.time:.3f} s; flight recorder not written: {exc}")
+                log(f"{cause} at t={truth.time:.3f} s; flight recorder not written: {exc}")
         elif height > self.fall_height + 0.05:
             self._fall_recorded = False
 
@@ -340,10 +359,7 @@ class SimBridgeNode(Node):
             "latency_p99_ms": f"{np.percentile(latencies, 99) * 1e3:.3f}" if latencies else "n/a",
             "lowest_base_height_m": f"{lowest:.3f}" if self.publish_ground_truth else "n/a",
         }
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        msg = DiagnosticArray(status=[status])
-        msg.header.stamp = cv.stamp_from_ns(self.sim.steps * self.dt_ns)
-        self.pub_diag.publish(msg)
+        self.pub_diag.publish(diagnostic_array(self, status, values, cv.stamp_from_ns(self.sim.steps * self.dt_ns)))
 
     def shutdown(self) -> None:
         with self._lock:

@@ -28,10 +28,10 @@ from collections import deque
 import numpy as np
 from a1_common.config import ConfigError, parameter_defaults, require_integer
 from a1_common.kinematics import quat_to_matrix
-from a1_common.node_support import coerce_parameter, declare_parameters, run_node
+from a1_common.node_support import coerce_parameter, declare_parameters, diagnostic_array, run_node
 from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
@@ -375,8 +375,7 @@ class ConvexMpcNode(Node):
             "power_w": f"{power:.1f}",
             "cost_of_transport": f"{cost_of_transport(power, self.mass, speed):.3f}" if speed > 0.1 else "n/a",
         }
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        self.pub_diag.publish(DiagnosticArray(status=[status]))
+        self.pub_diag.publish(diagnostic_array(self, status, values))
 
 
 def main(args: list[str] | None = None) -> None:

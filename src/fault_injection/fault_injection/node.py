@@ -13,10 +13,10 @@ import importlib
 import time
 
 from a1_common.config import ConfigError, parameter_defaults
-from a1_common.node_support import declare_parameters, run_node
+from a1_common.node_support import declare_parameters, diagnostic_array, run_node
 from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -69,8 +69,7 @@ class FaultRelayNode(Node):
     def _publish_diagnostics(self) -> None:
         status = DiagnosticStatus(name=f"fault_relay {self.topic}", hardware_id="fault_injection",
                                   level=DiagnosticStatus.OK, message="injecting faults")
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in vars(self.injector.counts).items()]
-        self.pub_diag.publish(DiagnosticArray(status=[status]))
+        self.pub_diag.publish(diagnostic_array(self, status, vars(self.injector.counts)))
 
 
 def main(args: list[str] | None = None) -> None:

@@ -12,7 +12,8 @@ are clamped (documented clamp) to what the controller can ever be asked for, |v_
 and |v| <= 10 m/s per axis measured (the estimator flags faster estimates as diverging), so
 that no input can drive a policy outside the range it was made for. Gait parameters are
 validated before they are published; an invalid output is dropped and counted (the controller then
-falls back to its hand-tuned gaits). Parameters are read at start-up only: runtime changes are refused.
+falls back to its hand-tuned gaits). /diagnostics at 1 Hz: the policy, its inputs and last gait, the
+counts. Parameters are read at start-up only: runtime changes are refused.
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ from __future__ import annotations
 import numpy as np
 from a1_common.config import ConfigError, require_range
 from a1_common.kinematics import quat_to_matrix
-from a1_common.node_support import declare_parameters, guard_runtime_parameters, run_node
+from a1_common.node_support import declare_parameters, diagnostic_array, guard_runtime_parameters, run_node
 from a1_sim_bridge.node import CONTROL_QOS
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -45,15 +47,20 @@ class GaitPolicyNode(Node):
         self.policy = make_policy(params["policy"])
         self.desired = np.zeros(2)
         self.measured = np.zeros(3)
+        self.policy_name = params["policy"]
         self.ignored_inputs = 0  # /cmd_vel or /odom messages with NaN/inf or no orientation
         self.invalid_outputs = 0  # policy outputs outside the gait parameter ranges, not published
+        self.odom_received = False
+        self.last_gait = None
         self.pub = self.create_publisher(GaitParamsMsg, "/gait/params", COMMAND_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         if params["cmd_vel_stamped"]:
             self.create_subscription(TwistStamped, "/cmd_vel", lambda m: self._on_cmd(m.twist), COMMAND_QOS)
         else:
             self.create_subscription(Twist, "/cmd_vel", self._on_cmd, COMMAND_QOS)
         self.create_subscription(Odometry, "/odom", self._on_odom, CONTROL_QOS)
         self.create_timer(1.0 / rate, self._tick)
+        self.create_timer(1.0, self._publish_diagnostics)
         guard_runtime_parameters(self, PARAMETERS)
         self.get_logger().info(f"gait policy '{params['policy']}' at {rate:g} Hz")
 
@@ -75,6 +82,7 @@ class GaitPolicyNode(Node):
             orientation = orientation / norm
             v_body = np.clip(v_body, -MAX_MEASURED_VELOCITY, MAX_MEASURED_VELOCITY)
             self.measured = heading_frame(orientation).T @ quat_to_matrix(orientation) @ v_body
+            self.odom_received = True
         else:
             self.ignored_inputs += 1
             self.get_logger().warning("ignored /odom with NaN/inf or without a unit orientation",
@@ -87,6 +95,7 @@ class GaitPolicyNode(Node):
             self.invalid_outputs += 1
             self.get_logger().error(f"policy output not published: {exc}", throttle_duration_sec=1.0)
             return
+        self.last_gait = params
         msg = GaitParamsMsg()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = "base_link"
@@ -94,6 +103,24 @@ class GaitPolicyNode(Node):
         msg.swing_ratio = params.swing_ratio
         msg.phase_offsets = list(params.phase_offsets)
         self.pub.publish(msg)
+
+    def _publish_diagnostics(self) -> None:
+        status = DiagnosticStatus(name="gait_policy", hardware_id="a1")
+        if not self.odom_received:
+            status.level, status.message = DiagnosticStatus.WARN, "waiting for /odom (policy sees zero velocity)"
+        elif self.invalid_outputs:
+            status.level, status.message = DiagnosticStatus.WARN, "policy outputs dropped (out of range)"
+        else:
+            status.level, status.message = DiagnosticStatus.OK, "publishing /gait/params"
+        gait = self.last_gait
+        values = {
+            "policy": self.policy_name, "desired_velocity": np.round(self.desired, 3).tolist(),
+            "measured_velocity": np.round(self.measured, 3).tolist(),
+            "stepping_frequency_hz": f"{gait.stepping_frequency:.2f}" if gait else "n/a",
+            "swing_ratio": f"{gait.swing_ratio:.2f}" if gait else "n/a",
+            "ignored_inputs": self.ignored_inputs, "invalid_outputs": self.invalid_outputs,
+        }
+        self.pub_diag.publish(diagnostic_array(self, status, values))
 
 
 def main(args: list[str] | None = None) -> None:

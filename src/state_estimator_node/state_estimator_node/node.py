@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 from a1_common.config import parameter_defaults
-from a1_common.node_support import declare_parameters, guard_runtime_parameters, run_node
+from a1_common.node_support import declare_parameters, diagnostic_array, guard_runtime_parameters, run_node
 from a1_sim_bridge.conversions import BASE_FRAME, ODOM_FRAME, ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
@@ -160,8 +160,7 @@ class StateEstimatorNode(Node):
             "velocity_body": np.round(est.velocity_body, 3).tolist(),
             "covariance_trace": f"{np.trace(est.covariance_world):.2e}",
         }
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        self.pub_diag.publish(DiagnosticArray(status=[status]))
+        self.pub_diag.publish(diagnostic_array(self, status, values))
 
 
 def main(args: list[str] | None = None) -> None:
