@@ -93,6 +93,23 @@ def test_damping_mode_and_bad_mode_name():
         sup.set_mode("sprint")
 
 
+def test_stand_requested_while_walking_stops_under_control_then_stands():
+    sup = make(stand_time=0.1, max_acceleration=10.0, stop_deceleration=2.0, cmd_vel_timeout=0.0)
+    sup.on_cmd_vel(1.0, 0.0, 0.0, now=0.0)
+    assert run(sup, 0.0, 0.5).velocity_command.vx == pytest.approx(1.0)
+    sup.set_mode("stand")  # `ros2 param set /convex_mpc mode stand` while walking at 1 m/s
+    stopping = run(sup, 0.5, 0.25)
+    assert stopping.state == "stopping_to_stand" and stopping.velocity_command.vx == pytest.approx(0.5, abs=0.01)
+    assert np.any(stopping.command.torque)  # still walking (MPC stance forces), not a frozen stance
+    # Zero 0.5 s after the request, then STOP_SETTLE_TIME of trotting in place, then the stance.
+    assert run(sup, 0.75, 0.7).state == "stopping_to_stand"
+    stood = run(sup, 1.45, 0.1)
+    assert stood.state == "stand" and not np.any(stood.command.torque) and np.all(stood.command.kp > 0)
+    assert run(sup, 1.55, 1.0).state == "stand"  # and stays standing, the command notwithstanding
+    sup.set_mode("walk")
+    assert run(sup, 2.55, 0.01).state == "walk"
+
+
 def test_stale_estimate_holds_a_safe_stance_and_recovers():
     sup = make(stand_time=0.1, input_timeout=0.05)
     assert run(sup, 0.0, 0.3).state == "walk"

@@ -4,6 +4,8 @@ Library core of the controller node (no ROS): the node only converts messages an
 - Modes: STAND (joint PD to the nominal pose, ramped from wherever the legs are), WALK (the MPC
   controller), DAMPING (motors damped, the A1's safe state). Every start, and every return from
   DAMPING or a stale-input hold, goes through STAND for ``stand_time`` before the requested mode.
+  STAND requested while walking is a controlled stop first (state "stopping_to_stand": the command
+  ramps to zero at ``stop_deceleration``, STOP_SETTLE_TIME of trotting in place), then the stance.
 - E-stop: latched DAMPING until cleared, whatever else arrives.
 - Fall: a body tilted more than ``fall_tilt`` from upright (IMU) has fallen; the motors go to
   DAMPING, latched like the e-stop until it is cleared: the MPC pushing on from a fallen pose
@@ -90,7 +92,9 @@ class SupervisorConfig:
 @dataclass
 class StepResult:
     command: JointCommand
-    state: str  # "stand", "walk", "damping", "estop", "fallen", "stopping", "safe_stand" (stale estimate)
+    # "stand", "walk", "damping", "estop", "fallen", "stopping", "safe_stand" (stale estimate),
+    # "stopping_to_stand" (mode stand requested while walking)
+    state: str
     velocity_command: VelocityCommand
 
 
@@ -121,6 +125,7 @@ class ControllerSupervisor:
         self._stand_start: tuple[float, np.ndarray] | None = None  # (time, pose) of the stand ramp
         self._walking = False
         self._stopped_since: float | None = None  # stopping: when the command reached zero
+        self._stand_stop_settled_since: float | None = None  # the same for a stop to `mode stand`
         self._last_time: float | None = None
 
     # --- inputs --------------------------------------------------------------------------------
@@ -196,7 +201,11 @@ class ControllerSupervisor:
             self._stopped_since = None
         stale = now - self._velocity_time > self.config.input_timeout
         stopping = stale and backup_velocity and self._walking
-        velocity_command = self._limited_command(now, dt, stopping)
+        # `mode stand` while walking: a controlled stop like the one above, then the stance.
+        stop_to_stand = self.requested == Mode.STAND and self._walking and not stale
+        if not stop_to_stand:
+            self._stand_stop_settled_since = None
+        velocity_command = self._limited_command(now, dt, stopping or stop_to_stand)
         if self.estopped or self.requested == Mode.DAMPING:
             self._stand_start = None
             self._walking = False
@@ -207,6 +216,13 @@ class ControllerSupervisor:
             if self._stopped_since is None or now - self._stopped_since < STOP_SETTLE_TIME:
                 self.stopping_steps += 1
                 return self._walk(now, dt, obs, velocity_command, "stopping")
+        if stop_to_stand:
+            if self._stand_stop_settled_since is None and not np.any(self._command):
+                self._stand_stop_settled_since = now
+            settled = self._stand_stop_settled_since
+            if settled is None or now - settled < STOP_SETTLE_TIME:
+                return self._walk(now, dt, obs, velocity_command, "stopping_to_stand")
+            self._walking, self._stand_start, self._stand_stop_settled_since = False, None, None
         if stale:
             self.safe_stand_steps += 1
             self._walking = False
