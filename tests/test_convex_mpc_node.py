@@ -8,6 +8,8 @@ import pytest
 from a1_sim_bridge.sim import A1Sim, SimConfig
 from convex_mpc_node.node import ConvexMpcNode
 from nav_msgs.msg import Odometry
+from state_estimator_node.estimator import EstimatorConfig
+from state_estimator_node.node import OdometryFrontend
 
 from a1_sim_bridge import conversions as cv
 from a1_sim_bridge import wire
@@ -110,6 +112,33 @@ def test_sim_reset_starts_the_step_count_over(node, readings):
         odom(node, k)
     assert node.sent[-3:] == [0, STEP_NS, 2 * STEP_NS]
     assert np.all(np.diff(node.sent[:10]) == STEP_NS)
+
+
+@pytest.mark.ros
+def test_sim_reset_after_seconds_is_controlled_from_its_first_step_standing(node, readings):
+    """A reset after more steps than the sensor buffers hold (they used to keep the old run's stamps
+    and evict the new run's): the first steps of the new run are answered, standing up."""
+    for k in range(2000, 2100):  # 4 s into a run
+        sensors(node, readings, k)
+        odom(node, k)
+    for k in range(3):
+        sensors(node, readings, k)
+        odom(node, k)
+    assert node.sent[-3:] == [0, STEP_NS, 2 * STEP_NS]
+    assert node._state == "stand"
+    # And the estimator's odometry starts over at the origin, where the reset put the robot.
+    r, names = readings
+
+    def step(k: int) -> tuple:
+        stamp = cv.stamp_from_ns(k * STEP_NS)
+        return cv.joint_state_msg(r, stamp, names), cv.imu_msg(r, stamp), cv.foot_contacts_msg(r, stamp)
+
+    front = OdometryFrontend(EstimatorConfig())
+    front.update(*step(2000))
+    front.update(*step(2001))
+    front.position = np.array([5.0, 1.0])  # dead-reckoned 5 m out
+    front.update(*step(0))
+    np.testing.assert_array_equal(front.position, 0.0)
 
 
 @pytest.mark.ros

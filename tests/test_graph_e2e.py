@@ -24,6 +24,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import spin_until
 from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 
 from gait_msgs.msg import MotorCommand
 
@@ -106,6 +107,28 @@ def test_cmd_vel_1_mps_walks_within_10_percent(graph, controller_params):
     for name in nodes:  # (the bridge reports t = 0 until the first command starts its sim)
         stamps = watcher.diagnostics[name]
         assert 0.0 < stamps[-1] <= watcher.sim_time() + 1.0 and stamps == sorted(stamps), (name, stamps)
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize("clock", ["lockstep", "realtime"])
+def test_reset_after_seconds_of_walking_stands_up_and_walks_again(graph, clock):
+    """``ros2 service call /sim_bridge/reset std_srvs/srv/Trigger`` on a graph that has walked for
+    seconds: the sim starts over, and the robot stands up and walks on the next /cmd_vel."""
+    g, watcher, executor = graph
+    g.start_stack(clock, 0.5, real_time_factor=0.25 if clock == "realtime" else 1.0)
+    watcher.speed = 1.0
+    run_until(executor, watcher, g, 4.0, wall_timeout=300)
+    assert watcher.lowest() > 0.18, "fell before the reset"
+    client = watcher.create_client(Trigger, "/sim_bridge/reset")
+    assert client.wait_for_service(timeout_sec=10.0)
+    future = client.call_async(Trigger.Request())
+    assert spin_until(executor, future.done, 10.0) and future.result().success
+    spin_until(executor, lambda: bool(watcher.truth) and watcher.truth[-1][0] < 1.0, 30.0)
+    watcher.truth = [sample for sample in watcher.truth if sample[0] < 1.0]  # the new run's, from t = 0
+    run_until(executor, watcher, g, 6.0, wall_timeout=120)
+    assert watcher.lowest() > 0.18, "fell after the reset"
+    assert watcher.mean_speed(5.0, 6.0) == pytest.approx(1.0, rel=0.15)
 
 
 @pytest.mark.ros

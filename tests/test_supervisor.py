@@ -110,6 +110,23 @@ def test_stand_requested_while_walking_stops_under_control_then_stands():
     assert run(sup, 2.55, 0.01).state == "walk"
 
 
+def test_restart_after_a_sim_reset_stands_up_and_waits_for_a_new_command():
+    sup = make(stand_time=0.1, fall_tilt=1.0, cmd_vel_timeout=0.0)
+    sup.on_cmd_vel(1.0, 0.0, 0.0, now=0.0)
+    assert run(sup, 0.0, 1.5).state == "walk"
+    sup.fallen = True  # the old world's fall is forgotten with it
+    sup.restart()  # the sim's clock went back to 0
+    first = run(sup, 0.0, 0.002)
+    assert first.state == "stand" and first.velocity_command.vx == 0.0
+    assert run(sup, 0.002, 0.3).velocity_command.vx == 0.0  # the old run's 1 m/s is void
+    sup.on_cmd_vel(1.0, 0.0, 0.0, now=0.3)
+    walking = run(sup, 0.3, 0.2)
+    assert walking.state == "walk" and walking.velocity_command.vx > 0.0
+    sup.estop()
+    sup.restart()
+    assert run(sup, 0.5, 0.01).state == "estop"  # an e-stop outlives a reset
+
+
 def test_stale_estimate_holds_a_safe_stance_and_recovers():
     sup = make(stand_time=0.1, input_timeout=0.05)
     assert run(sup, 0.0, 0.3).state == "walk"

@@ -62,6 +62,7 @@ NODE_PARAMETERS = {"cmd_vel_stamped": False, "mass_for_cot": 12.458, "embedded_e
                    "inject_qp_failures": 0}
 RUNTIME_PARAMETERS = ("mode", "inject_qp_failures")
 BACKUP_HOLD = 0.02  # [s] the backup estimate outlives refused sensor samples this long
+SIM_RESET_JUMP_NS = 100_000_000  # sensor time jumping back by more than this [ns] is a simulation reset
 
 
 def _supervisor_defaults() -> dict:
@@ -146,7 +147,10 @@ class ConvexMpcNode(Node):
 
     @staticmethod
     def _store(buffer: dict, msg) -> None:
-        buffer[ns_from_stamp(msg.header.stamp)] = msg
+        stamp_ns = ns_from_stamp(msg.header.stamp)
+        if buffer and stamp_ns < max(buffer) - SIM_RESET_JUMP_NS:
+            buffer.clear()  # a sim reset: the old run's steps would evict the new run's (smaller) stamps
+        buffer[stamp_ns] = msg
         while len(buffer) > 50:  # keep the last 0.1 s of sensor steps
             del buffer[min(buffer)]
 
@@ -217,14 +221,18 @@ class ConvexMpcNode(Node):
     def _step_if_odom_stale(self, stamp_ns: int) -> None:
         """No fresh /odom for this step: control it once its sensors are in, on the backup estimate
         (controlled stop) or on the sensors alone (safe stance)."""
-        if (stamp_ns - self._odom_ns) * 1e-9 > self.supervisor.config.input_timeout and self._is_new_step(stamp_ns):
+        if self._is_new_step(stamp_ns) and (stamp_ns - self._odom_ns) * 1e-9 > self.supervisor.config.input_timeout:
             self._control(stamp_ns, None, self._backup_velocity(stamp_ns))
 
     def _is_new_step(self, stamp_ns: int) -> bool:
-        """``stamp_ns`` was not controlled yet. Time jumping back over 0.1 s is a sim reset: start over."""
-        if stamp_ns < self._controlled_ns - 100_000_000:
+        """``stamp_ns`` was not controlled yet. Time jumping back over SIM_RESET_JUMP_NS is a sim reset:
+        start over, standing up first."""
+        if stamp_ns < self._controlled_ns - SIM_RESET_JUMP_NS:
+            self.get_logger().warning(f"sensor time jumped back from {self._controlled_ns * 1e-9:.3f} s to "
+                                      f"{stamp_ns * 1e-9:.3f} s: simulation reset; standing up again")
             self._controlled_ns = self._odom_ns = -1
-            self._backup_sample = None
+            self._backup_sample, self._last_command, self._on_backup = None, None, False
+            self.supervisor.restart()
         return stamp_ns > self._controlled_ns
 
     def _step_sensors(self, stamp_ns: int) -> tuple[JointState, Imu, FootContacts] | None:

@@ -144,6 +144,15 @@ class ControllerSupervisor:
             self.estopped = self.fallen = False
             self._stand_start = None
 
+    def restart(self) -> None:
+        """The robot's world started over (a simulation reset; its clock went back): stand up again,
+        and wait for a new /cmd_vel, gait and estimate, since those of the old run are void. A fall is
+        forgotten with the world it happened in; an e-stop stays latched."""
+        self.fallen = self._walking = False
+        self._stand_start = self._stopped_since = self._stand_stop_settled_since = self._last_time = None
+        self._target, self._command = np.zeros(3), np.zeros(3)
+        self._cmd_time = self._gait_time = self._velocity_time = float("-inf")
+
     def on_cmd_vel(self, vx: float, vy: float, yaw_rate: float, now: float) -> bool:
         values = np.array([vx, vy, yaw_rate], dtype=float)
         if not np.all(np.isfinite(values)):

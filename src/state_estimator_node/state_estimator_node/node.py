@@ -68,6 +68,8 @@ class OdometryFrontend:
             return None
         if self.last_ns is not None and now_ns > self.last_ns:
             self.position += est.velocity_world[:2] * (now_ns - self.last_ns) * 1e-9
+        elif self.last_ns is not None and now_ns < self.last_ns:
+            self.position = np.zeros(2)  # time went back: a simulation reset put the robot at the origin
         self.last_ns = now_ns
         return est
 
