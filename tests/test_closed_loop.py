@@ -209,6 +209,27 @@ def test_gait_clock_catches_up_with_missed_steps():
         controller.close()
 
 
+def test_flat_ground_has_no_end_at_100_m():
+    """plane.urdf is a 200 m box: a robot started 95 m out at 2.5 m/s used to run off its edge at
+    x = 100 m and fall for good. Now the ground goes on (worlds.GroundTiles)."""
+    from a1_sim_bridge.sim import A1Sim
+
+    sim = A1Sim()
+    loop = ClosedLoop(GAITS["fly_trot"], sim=sim)
+    p = sim._p  # fast-forward: put the robot 95 m out, as 40 s of running would
+    position, orientation = p.getBasePositionAndOrientation(sim._body)
+    p.resetBasePositionAndOrientation(sim._body, [95.0, 0.0, position[2]], orientation)
+    profile = ramp_profile(2.5)
+    try:
+        for _ in range(round(8.0 / 0.002)):
+            loop.step(profile(sim.time))
+            assert not loop.fallen, f"fell at x = {sim.ground_truth().base_position[0]:.1f} m"
+        x, _, z = sim.ground_truth().base_position
+        assert x > 105.0 and z > 0.2
+    finally:
+        sim.close()
+
+
 def test_mpc_async_must_be_a_bool():
     with pytest.raises(ConfigError, match=r"mpc_async must be true or false, got 'yes'"):
         dataclasses.replace(load_controller_config(), mpc_async="yes").validated()

@@ -10,6 +10,7 @@ from a1_common.files import TEMPORARY_MARK
 from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
 from a1_sim_bridge.joint_hold_node import JointHoldNode
 from a1_sim_bridge.node import CONTROL_QOS, SimBridgeNode
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -228,6 +229,23 @@ def test_commanded_damping_is_recorded_as_damped_not_as_a_fall(rclpy_context, tm
     data = flight_recorder.load(path)
     assert data["base_position_m"][-1, 2] < 0.18 and data["commanded_damping"][-1] == 1
     assert np.array_equal(data["commanded_damping"], data["damping"])  # the watchdog never stepped in
+
+
+@pytest.mark.ros
+def test_a_base_that_left_the_world_is_reported(rclpy_context):
+    bridge = SimBridgeNode(context=rclpy_context, parameter_overrides=[Parameter("clock_mode", value="lockstep")])
+    sent = []
+    bridge.pub_diag.publish = sent.append
+    try:
+        bridge._publish_diagnostics()
+        bridge.sim.base_position = (0.0, 0.0, -3.0)  # through the ground (no command yet: the sim holds)
+        bridge._publish_diagnostics()
+    finally:
+        bridge.shutdown()
+        bridge.destroy_node()
+    standing, gone = (m.status[0] for m in sent)
+    assert standing.level != DiagnosticStatus.ERROR
+    assert gone.level == DiagnosticStatus.ERROR and "left the world: z = -3.0 m" in gone.message
 
 
 def test_flight_recorder_ring_and_file_checks(tmp_path):

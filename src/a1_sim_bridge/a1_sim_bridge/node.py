@@ -49,6 +49,7 @@ from gait_msgs.msg import FootContacts, MotorCommand
 CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 CLOCK_MODES = ("lockstep", "realtime")
+LEFT_WORLD_HEIGHT = -1.0  # [m] a base this far below the ground's surface has fallen through or off it
 UPRIGHT_TILT = 0.3  # [rad] body tilt under which a robot stands or walks (the controller's falls start far beyond)
 NODE_PARAMETERS = {  # node-only parameters and defaults; the rest configure A1Sim
     "clock_mode": "lockstep",
@@ -339,7 +340,12 @@ class SimBridgeNode(Node):
         self._rate_window = (now, self._published)
         wd = self.watchdog
         status = DiagnosticStatus(name="a1_sim_bridge", hardware_id="a1_sim")
-        if wd.in_fallback:
+        base_z = float(self.sim.base_position[2])
+        if base_z < LEFT_WORLD_HEIGHT:
+            status.level = DiagnosticStatus.ERROR
+            status.message = f"the base left the world: z = {base_z:.1f} m (reset the simulation)"
+            self.get_logger().error(status.message, throttle_duration_sec=10.0)
+        elif wd.in_fallback:
             status.level = DiagnosticStatus.WARN
             status.message = "damping: no valid /motor_command"
         else:
@@ -358,6 +364,7 @@ class SimBridgeNode(Node):
             "latency_median_ms": f"{np.median(latencies) * 1e3:.3f}" if latencies else "n/a",
             "latency_p99_ms": f"{np.percentile(latencies, 99) * 1e3:.3f}" if latencies else "n/a",
             "lowest_base_height_m": f"{lowest:.3f}" if self.publish_ground_truth else "n/a",
+            "base_height_m": f"{base_z:.3f}",
         }
         self.pub_diag.publish(diagnostic_array(self, status, values, cv.stamp_from_ns(self.sim.steps * self.dt_ns)))
 

@@ -165,9 +165,9 @@ class A1Sim:
                                     numSubSteps=0, deterministicOverlappingPairs=1)
         terrain_rng = np.random.default_rng([cfg.seed, 0])
         self._noise_rng = np.random.default_rng([cfg.seed, 1])
-        _, ground_z = build_world(p, cfg.world, ground_friction=cfg.ground_friction, rng=terrain_rng,
-                                  step_height=cfg.step_height, step_distance=cfg.step_distance,
-                                  rough_amplitude=cfg.rough_amplitude, slope_angle=cfg.slope_angle)
+        _, ground_z, self._ground = build_world(
+            p, cfg.world, ground_friction=cfg.ground_friction, rng=terrain_rng, step_height=cfg.step_height,
+            step_distance=cfg.step_distance, rough_amplitude=cfg.rough_amplitude, slope_angle=cfg.slope_angle)
         self._body = p.loadURDF("a1/a1.urdf", [0.0, 0.0, ground_z + START_CLEARANCE], [0, 0, 0, 1])
         self._index_joints()
         # Disable the default velocity motors so that only our torques act.
@@ -238,7 +238,9 @@ class A1Sim:
         states = p.getJointStates(self._body, self._joint_ids)
         q = np.array([s[0] for s in states])
         dq = np.array([s[1] for s in states])
-        _, orientation = p.getBasePositionAndOrientation(self._body)
+        position, orientation = p.getBasePositionAndOrientation(self._body)
+        self.base_position = position  # world [m], for checks that need no full ground truth
+        self._ground.follow(position[0], position[1])  # ground without end (worlds.GroundTiles)
         _, omega_world = p.getBaseVelocity(self._body)
         rot = np.array(p.getMatrixFromQuaternion(orientation)).reshape(3, 3)  # base -> world
         gyro = rot.T @ np.array(omega_world)
