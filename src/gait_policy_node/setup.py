@@ -18,6 +18,7 @@ setup(
         "console_scripts": [
             "gait_policy = gait_policy_node.policy_node:main",
             "velocity_command = gait_policy_node.velocity_command:main",
+            "teleop_keyboard = gait_policy_node.teleop_node:main",
             "demo_report = gait_policy_node.demo_report:main",
             "train_es = gait_policy_node.train_es:main",
             "eval_policy = gait_policy_node.eval_policy:main",
