@@ -9,17 +9,20 @@ import numpy as np
 import pytest
 from a1_common.config import ConfigError
 from a1_sim_bridge.node import CONTROL_QOS
+from gait_policy_node.demo_report import DemoReportNode
 from gait_policy_node.learned_policy import NetworkPolicy, save_policy
 from gait_policy_node.policy_node import COMMAND_QOS, GaitPolicyNode
 from gait_policy_node.train_config import TrainConfig
-from geometry_msgs.msg import Twist
+from geometry_msgs.msg import Twist, Vector3
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from ros_helpers import spin_until
+from sensor_msgs.msg import JointState
 
 from gait_msgs.msg import GaitParams as GaitParamsMsg
+from gait_msgs.msg import GaitState
 
 
 @pytest.mark.ros
@@ -69,3 +72,27 @@ def test_a_corrupt_policy_file_is_refused_with_the_reason(rclpy_context, tmp_pat
     path.write_bytes(b"PK\x03\x04 not really a zip")
     with pytest.raises(ConfigError, match=r"policy file .*broken\.npz"):
         GaitPolicyNode(context=rclpy_context, parameter_overrides=[Parameter("policy", value=str(path))])
+
+
+@pytest.mark.ros
+def test_demo_report_prints_a_line_per_second_of_sim_time(rclpy_context, capsys, tmp_path):
+    report = DemoReportNode(context=rclpy_context, parameter_overrides=[
+        Parameter("duration", value=100.0), Parameter("output", value=str(tmp_path / "gait.png"))])
+    try:
+        truth = Odometry()
+        truth.twist.twist.linear.x, truth.pose.pose.position.z = 1.23, 0.30
+        report.truth = truth
+        report.joints = JointState(velocity=[0.0] * 12, effort=[0.0] * 12)
+        report._on_cmd(Twist(linear=Vector3(x=1.25)))
+        for k in range(126):  # 2.5 s of steps of 20 ms
+            state = GaitState()
+            state.header.stamp.sec, state.header.stamp.nanosec = divmod(k * 20_000_000, 1_000_000_000)
+            state.params.stepping_frequency, state.params.swing_ratio = 2.0, 0.45
+            state.params.phase_offsets = [0.0, math.pi, math.pi, 0.0]
+            report._on_state(state)
+    finally:
+        report.destroy_node()
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("t ")]
+    assert len(lines) == 3  # at 0, 1 and 2 s
+    assert lines[1].split()[:7] == ["t", "1.0", "s", "command", "1.25", "m/s", "actual"]
+    assert "trot" in lines[1] and "f 2.00 Hz" in lines[1] and "missed deadlines n/a" in lines[1]

@@ -1,7 +1,8 @@
 """demo_report: watch a running graph, then summarise the run and draw its gait diagram.
 
 Records /gait/state, /joint_states, /cmd_vel and the sim's /sim/ground_truth/odom for ``duration``
-seconds of sensor time, then prints per speed band: commanded and actual speed, tracking error,
+seconds of sensor time, with one line per second of sim time while it runs (commanded and actual
+speed, gait, the controller's missed deadlines), then prints per speed band: commanded and actual speed, tracking error,
 the gait used (gait_analysis.classify_gait), power and cost of
 transport; plus distance, falls and the controller's missed deadlines. Writes a PNG like the
 paper's acceleration figure: contacts per leg over time with speed, frequency and swing ratio.
@@ -25,7 +26,13 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from gait_msgs.msg import GaitState
-from gait_policy_node.gait_analysis import format_band_table, plot_gait_diagram, summarise_bands, transition_speeds
+from gait_policy_node.gait_analysis import (
+    classify_gait,
+    format_band_table,
+    plot_gait_diagram,
+    summarise_bands,
+    transition_speeds,
+)
 
 
 class DemoReportNode(Node):
@@ -41,6 +48,7 @@ class DemoReportNode(Node):
         self.cmd = np.zeros(3)
         self.missed = "n/a"
         self.first_ns: int | None = None
+        self.next_line = 0.0  # [s] of sim time: when the next progress line is due
         self.create_subscription(GaitState, "/gait/state", self._on_state, CONTROL_QOS)
         self.create_subscription(Odometry, "/sim/ground_truth/odom", lambda m: setattr(self, "truth", m), CONTROL_QOS)
         self.create_subscription(JointState, "/joint_states", lambda m: setattr(self, "joints", m), CONTROL_QOS)
@@ -68,6 +76,12 @@ class DemoReportNode(Node):
         self.rows.append((t, self.cmd[0], self.truth.twist.twist.linear.x, pos.x, pos.y, pos.z, power,
                           msg.params.stepping_frequency, msg.params.swing_ratio, *msg.params.phase_offsets,
                           *[bool(c) for c in msg.desired_contact], *[s != GaitState.LEG_SWING for s in msg.leg_states]))
+        if t >= self.next_line:
+            self.next_line += 1.0
+            gait = classify_gait(msg.params.swing_ratio, tuple(msg.params.phase_offsets))
+            print(f"t {t:5.1f} s  command {self.cmd[0]:4.2f} m/s  actual {self.truth.twist.twist.linear.x:5.2f} m/s  "
+                  f"{gait:<8} f {msg.params.stepping_frequency:.2f} Hz  p_swing {msg.params.swing_ratio:.2f}  "
+                  f"base {pos.z:.2f} m  missed deadlines {self.missed}", flush=True)
         if t >= self.duration:
             self.finish()
             self.context.try_shutdown()
