@@ -3,7 +3,7 @@
 #
 # Usage: scripts/bringup.sh [--world flat|step|rough|soft|slope] [--clock lockstep|realtime]
 #                           [--policy learned|scheduled|walk|slow_trot|rapid_trot|fly_trot|<file>.npz]
-#                           [--bridge sim|hardware|virtual]
+#                           [--bridge sim|hardware|virtual] [--record [DIR]]
 # --bridge: sim (default) = the PyBullet sim bridge; hardware = the real A1 over its low-level UDP
 #   protocol (config/a1_hw_bridge.yaml, realtime only; read docs/hardware.md first); virtual = the
 #   hardware bridge talking UDP on loopback to a virtual A1 that runs the simulation (--world, --clock).
@@ -11,18 +11,21 @@
 #   (without the ros2 CLI: install/gait_policy_node/lib/gait_policy_node/velocity_command
 #    --ros-args -p profile:=constant -p speed:=1.0 -p use_sim_time:=true; :=false with
 #    --bridge hardware, or virtual in realtime: only the sim bridge and lockstep publish /clock)
+# --record: every topic into a rosbag2 bag with MCAP storage (DIR, default <log dir>/bag), written by
+#   bag_recorder in its own process; `ros2 bag info DIR` / `ros2 bag play DIR` / Foxglove open it.
 # Each node is started with `ros2 run` when the ros2 CLI exists, else the installed executable;
 # parameters from config/; one log per node in log/bringup/<time>/. Ctrl-C or SIGTERM stops them all.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-WORLD=flat CLOCK=realtime POLICY=scheduled BRIDGE=sim WORLD_GIVEN=0
+WORLD=flat CLOCK=realtime POLICY=scheduled BRIDGE=sim WORLD_GIVEN=0 RECORD=0 BAG=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --world) WORLD="${2:?--world needs a value}"; WORLD_GIVEN=1; shift 2 ;;
     --bridge) BRIDGE="${2:?--bridge needs a value}"; shift 2 ;;
     --clock) CLOCK="${2:?--clock needs a value}"; shift 2 ;;
     --policy) POLICY="${2:?--policy needs a value}"; shift 2 ;;
-    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
+    --record) RECORD=1; if [ $# -gt 1 ] && [ "${2#--}" = "$2" ]; then BAG=$2; shift; fi; shift ;;
+    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
     *) echo "bringup.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -40,8 +43,13 @@ resolve_policy bringup.sh "$POLICY"
 source "$ROOT/scripts/env.sh"
 LOGDIR="$ROOT/log/bringup/$(date +%Y%m%d-%H%M%S)"
 mkdir -p "$LOGDIR"
-trap stop_nodes EXIT
+trap 'stop_nodes; [ "$RECORD" = 1 ] && recorder_summary "$LOGDIR"' EXIT
 trap 'exit 130' INT TERM
+if [ "$RECORD" = 1 ]; then
+  BAG="${BAG:-$LOGDIR/bag}"
+  [ -e "$BAG" ] && { echo "bringup.sh: --record folder '$BAG' already exists; choose another" >&2; exit 2; }
+  start_recorder "$LOGDIR" "$(mkdir -p "$(dirname "$BAG")" && cd "$(dirname "$BAG")" && pwd)/$(basename "$BAG")" "$CLOCK"
+fi
 start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY" "$BRIDGE"
 echo "[bringup] running (bridge=$BRIDGE world=$WORLD clock=$CLOCK policy=$POLICY); logs in $LOGDIR; Ctrl-C to stop"
 while check_nodes; do sleep 1 & wait $! || true; done

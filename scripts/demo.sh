@@ -3,23 +3,25 @@
 # speed profile (0 -> 2.5 m/s at 1 m/s^2, then hold), and report.
 #
 # Usage: scripts/demo.sh [--world flat|step|rough|soft|slope] [--duration SECONDS] [--clock lockstep|realtime]
-#                        [--policy learned|scheduled|walk|slow_trot|rapid_trot|fly_trot|<file>.npz]
+#                        [--policy learned|scheduled|walk|slow_trot|rapid_trot|fly_trot|<file>.npz] [--no-record]
 #
 # Starts sim_bridge, state_estimator, convex_mpc and gait_policy (scripts/lib/nodes.sh), the
 # velocity_command ramp and demo_report, which after --duration seconds of sim time (default 20)
 # prints distance, speed tracking, gait, power and cost of transport per speed band, and writes
-# a gait diagram PNG (log/demo/gait_diagram.png). Every node started here is stopped on exit,
+# a gait diagram PNG (log/demo/gait_diagram.png), and records every topic into a rosbag2 bag with
+# MCAP storage, log/demo/bag (unless --no-record). Every node started here is stopped on exit,
 # Ctrl-C or SIGTERM. Per-node logs: log/demo/<node>.log.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-WORLD=flat DURATION=20 CLOCK=lockstep POLICY=scheduled
+WORLD=flat DURATION=20 CLOCK=lockstep POLICY=scheduled RECORD=1
 while [ $# -gt 0 ]; do
   case "$1" in
     --world) WORLD="${2:?--world needs a value}"; shift 2 ;;
     --duration) DURATION="${2:?--duration needs a value}"; shift 2 ;;
     --clock) CLOCK="${2:?--clock needs a value}"; shift 2 ;;
     --policy) POLICY="${2:?--policy needs a value}"; shift 2 ;;
-    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
+    --no-record) RECORD=0; shift ;;
+    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
     *) echo "demo.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -41,6 +43,10 @@ trap stop_nodes EXIT
 trap 'exit 130' INT TERM
 
 echo "[demo] world=$WORLD clock=$CLOCK policy=$POLICY duration=${DURATION}s of sim time (logs in $LOGDIR)"
+if [ "$RECORD" = 1 ]; then
+  rm -rf "$LOGDIR/bag"  # the demo's logs are the last run's
+  start_recorder "$LOGDIR" "$LOGDIR/bag" "$CLOCK"
+fi
 start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY"
 # The ramp starts after 1.5 s: the controller stands up first (stand_time in config/convex_mpc.yaml).
 start_node gait_policy_node velocity_command "$LOGDIR" --ros-args -p use_sim_time:=true -p profile:=ramp \
@@ -62,3 +68,9 @@ while kill -0 "$report" 2>/dev/null; do
   sleep 0.5 & wait $! || true
 done
 wait "$report" || { rc=$?; [ "$rc" = 124 ] && echo "[demo] ERROR: no report after ${cap}s; logs in $LOGDIR" >&2; exit "$rc"; }
+stop_nodes
+if [ "$RECORD" = 1 ]; then
+  recorder_summary "$LOGDIR" | head -n 1
+  echo "[demo] bag: $LOGDIR/bag (ros2 bag info $LOGDIR/bag; opens in Foxglove and PlotJuggler)"
+fi
+echo "[demo] gait diagram: $LOGDIR/gait_diagram.png; logs: $LOGDIR"

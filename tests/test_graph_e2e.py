@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
+from bag_recorder.bag import read_bag
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
 from graph_helpers import PROBE_QOS, ROOT, Graph, damping_onset, run_until, set_sim_paused
@@ -176,24 +177,35 @@ def test_controller_killed_damps_within_50_ms_then_recovers(graph):
 
 
 @pytest.mark.ros
-def test_bringup_script_leaves_no_process_after_sigterm(rclpy_context):
+@pytest.mark.parametrize("record", [False, True], ids=["plain", "record"])
+def test_bringup_script_leaves_no_process_after_sigterm(rclpy_context, tmp_path, record):
+    """--record adds the bag recorder, whose bag SIGTERM closes: metadata.yaml, and the graph's topics
+    read back with the library."""
     env = {**os.environ}
-    proc = subprocess.Popen(["bash", str(ROOT / "scripts" / "bringup.sh"), "--clock", "lockstep"], env=env,
+    bag = tmp_path / "bag"
+    extra = ["--record", str(bag)] if record else []
+    proc = subprocess.Popen(["bash", str(ROOT / "scripts" / "bringup.sh"), "--clock", "lockstep", *extra], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     pids = []
+    nodes = 5 if record else 4
     deadline = time.monotonic() + 60
-    while len(pids) < 4 and time.monotonic() < deadline:
+    while len(pids) < nodes and time.monotonic() < deadline:
         line = proc.stdout.readline()
         if "started" in line and "(pid " in line:
             pids.append(int(line.split("(pid ")[1].split(",")[0].rstrip(")")))
-    assert len(pids) == 4, f"bring-up did not start 4 nodes: {pids}"
+    assert len(pids) == nodes, f"bring-up did not start {nodes} nodes: {pids}"
     listener = Node("bringup_listener", context=rclpy_context)
     seen = []
     listener.create_subscription(JointState, "/joint_states", seen.append, CONTROL_QOS)
+    written: dict[str, str] = {}  # the recorder's /diagnostics: messages written per topic
+    listener.create_subscription(DiagnosticArray, "/diagnostics", lambda m: written.update(
+        {kv.key: kv.value for st in m.status if st.name == "bag_recorder" for kv in st.values}), 10)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(listener)
     try:
         assert spin_until(executor, lambda: len(seen) > 10, 60.0), "graph never published"
+        if record:
+            assert spin_until(executor, lambda: int(written.get("/joint_states", 0)) > 10, 60.0), written
         os.kill(proc.pid, signal.SIGTERM)
         proc.wait(timeout=30)
     finally:
@@ -204,3 +216,7 @@ def test_bringup_script_leaves_no_process_after_sigterm(rclpy_context):
     for pid in pids:
         with pytest.raises(ProcessLookupError):
             os.killpg(pid, 0)  # the node's whole process group is gone
+    if record:
+        assert (bag / "metadata.yaml").is_file()
+        stamps = [t for topic, _, t, _ in read_bag(bag) if topic == "/joint_states"]
+        assert len(stamps) > 10 and stamps == sorted(stamps)

@@ -69,6 +69,16 @@ stop_nodes() {  # SIGINT each started node's process group, then SIGKILL what is
   _GS_PIDS=()
 }
 
+start_recorder() {  # <logdir> <bag folder> <clock>: every topic into a rosbag2 bag (MCAP), its own process
+  local logdir=$1 bag=$2 clock=$3
+  start_node bag_recorder record "$logdir" --ros-args -p output:="$bag" \
+    -p use_sim_time:=$([ "$clock" = lockstep ] && echo true || echo false)
+}
+
+recorder_summary() {  # <logdir>: what the recorder wrote (after stop_nodes closed its bag)
+  grep -h -A1000 "bag_recorder: wrote" "$1/record.log" 2>/dev/null || echo "[nodes] the recorder wrote no summary; see $1/record.log"
+}
+
 start_graph() {  # <logdir> <world> <clock> <policy> [bridge]: a bridge and the three stack nodes
   # bridge: sim (default) | hardware (the real A1, realtime) | virtual (hw_bridge + virtual_a1 on loopback)
   local logdir=$1 world=$2 clock=$3 policy=$4 bridge=${5:-sim} cfg="$GAIT_STACK_ROOT/config"
