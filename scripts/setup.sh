@@ -96,7 +96,12 @@ if [ "$FORCE" = 1 ] || [ ! -f "$build_stamp" ] || [ "$(cat "$build_stamp")" != "
   (
     cd "$ROOT" && mkdir -p log
     export PATH="$VENV/bin:$PATH" AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV"
-    colcon --log-base log build --symlink-install --event-handlers console_cohesion- \
+    # tf2_msgs: the system's where it has one (a full ROS 2 install), else the workspace's fallback.
+    skip=()
+    if [ ! -d "$ROOT/install/tf2_msgs" ] && python3 -c "import tf2_msgs.msg" >/dev/null 2>&1; then
+      skip=(--packages-skip tf2_msgs)
+    fi
+    colcon --log-base log build --symlink-install --event-handlers console_cohesion- "${skip[@]}" \
       --cmake-args -DPython3_EXECUTABLE="$VPY" -DBUILD_TESTING=OFF -Wno-dev >"$ROOT/log/colcon-build.out" 2>&1 \
       || { tail -n 40 "$ROOT/log/colcon-build.out" >&2; exit 1; }
   ) || die "colcon build failed (full output: log/colcon-build.out, per-package logs under log/latest_build/)"

@@ -25,9 +25,11 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import spin_until
 from sensor_msgs.msg import JointState
+from state_estimator_node.node import TF_QOS
 from std_srvs.srv import Trigger
 
 from gait_msgs.msg import MotorCommand
+from tf2_msgs.msg import TFMessage
 
 
 class Watcher(Node):
@@ -40,8 +42,11 @@ class Watcher(Node):
         self.commands: list[float] = []  # stamps of /motor_command [s]
         self.joints: list[tuple[float, np.ndarray, np.ndarray]] = []  # (t, velocity, effort)
         self.diagnostics: dict[str, list[float]] = {}  # status name -> header stamps [s]
+        self.transforms: list[tuple[str, str, float]] = []  # /tf: (parent, child, x)
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, reliable)
+        self.create_subscription(TFMessage, "/tf", lambda m: self.transforms.extend(
+            (t.header.frame_id, t.child_frame_id, t.transform.translation.x) for t in m.transforms), TF_QOS)
         self._pub = self.create_publisher(Twist, "/cmd_vel", reliable)
         self._last_pub = 0.0
         self.create_subscription(Odometry, "/sim/ground_truth/odom", self._on_truth, PROBE_QOS)
@@ -102,6 +107,9 @@ def test_cmd_vel_1_mps_walks_within_10_percent(graph, controller_params):
     assert watcher.lowest() > 0.18, "fell"
     # Stand-up 1 s, then 1 m/s^2 to 1.0 m/s: 5 s into walking is about t = 6..7 s.
     assert watcher.mean_speed(6.0, 7.0) == pytest.approx(1.0, rel=0.10)
+    # /tf odom -> base_link from whichever node publishes /odom, following the robot forward.
+    assert watcher.transforms and {t[:2] for t in watcher.transforms} == {("odom", "base_link")}
+    assert watcher.transforms[-1][2] > 2.0
     # Every node reports on /diagnostics, stamped on its (sim) clock.
     nodes = {"a1_sim_bridge", "convex_mpc", "gait_policy"} | ({"state_estimator"} if not controller_params else set())
     assert nodes <= set(watcher.diagnostics), watcher.diagnostics

@@ -2,18 +2,24 @@
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
+
 import numpy as np
 import pytest
 from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.joint_hold_node import JointHoldNode
-from a1_sim_bridge.node import CONTROL_QOS, SimBridgeNode
+from a1_sim_bridge.node import CONTROL_QOS, DESCRIPTION_QOS, SimBridgeNode
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
 from ros_helpers import spin_until
 from sensor_msgs.msg import JointState
-from state_estimator_node.node import StateEstimatorNode
+from state_estimator_node.node import TF_QOS, StateEstimatorNode
+from std_msgs.msg import String
+
+from tf2_msgs.msg import TFMessage
 
 
 @pytest.mark.ros
@@ -22,8 +28,10 @@ def test_odometry_from_the_sim_bridge(rclpy_context):
     hold = JointHoldNode(context=rclpy_context)
     estimator = StateEstimatorNode(context=rclpy_context)
     listener = Node("odom_listener", context=rclpy_context)
-    odoms, joints = [], []
-    listener.create_subscription(Odometry, "/odom", odoms.append, CONTROL_QOS)
+    odoms, joints, tfs, descriptions = [], [], [], []
+    listener.create_subscription(Odometry, "/odom", odoms.append, QoSProfile(depth=1000))
+    listener.create_subscription(TFMessage, "/tf", tfs.append, TF_QOS)
+    listener.create_subscription(String, "/robot_description", descriptions.append, DESCRIPTION_QOS)
     listener.create_subscription(JointState, "/joint_states", joints.append, CONTROL_QOS)
     executor = SingleThreadedExecutor(context=rclpy_context)
     for n in (bridge, hold, estimator, listener):
@@ -40,6 +48,25 @@ def test_odometry_from_the_sim_bridge(rclpy_context):
         assert np.all(np.isfinite(cov)) and np.all(np.diag(cov)[:3] > 0)
         assert last.pose.pose.position.z == pytest.approx(0.28, abs=0.04)  # COM height from the legs
         assert estimator.estimator.rejected_samples == 0
+        # What RViz needs (REP-105): /tf odom -> base_link equal to /odom's pose at the same stamp,
+        # and the latched URDF naming every joint of /joint_states, rooted at base_link.
+        assert spin_until(executor, lambda: len(tfs) >= 3 and descriptions, timeout_s=10.0)
+        poses = {ns_from_stamp(o.header.stamp): o.pose.pose for o in odoms}
+        (t,) = tfs[-1].transforms
+        assert (t.header.frame_id, t.child_frame_id) == ("odom", "base_link")
+        pose = poses[ns_from_stamp(t.header.stamp)]
+        assert [t.transform.translation.x, t.transform.translation.y, t.transform.translation.z] == [
+            pose.position.x, pose.position.y, pose.position.z]
+        assert t.transform.rotation == pose.orientation
+        gaps = np.diff([ns_from_stamp(m.transforms[0].header.stamp) for m in tfs]) * 1e-9
+        assert np.all(gaps >= 0.02 - 1e-9)  # 50 Hz of sim time, not 500 Hz
+        urdf = ET.fromstring(descriptions[0].data)
+        joint_names = {j.get("name") for j in urdf.findall("joint")}
+        assert set(joints[-1].name) <= joint_names
+        children = {j.find("child").get("link") for j in urdf.findall("joint")}
+        roots = {link.get("name") for link in urdf.findall("link")} - children
+        assert roots == {"base_link"}
+        assert all(m.get("filename").startswith("file:///") for m in urdf.iter("mesh"))
 
         # A joint state with NaN velocities is rejected and counted, not published.
         executor.remove_node(hold)

@@ -38,16 +38,21 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
 from a1_sim_bridge import conversions as cv
 from a1_sim_bridge import wire
+from a1_sim_bridge.description import robot_description
 from a1_sim_bridge.flight_recorder import FlightRecorder
 from a1_sim_bridge.sim import A1Sim, SimConfig
 from gait_msgs.msg import FootContacts, MotorCommand
 
 CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
+# Latched: a node that starts later (robot_state_publisher, RViz, a recorder) still gets it.
+DESCRIPTION_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CLOCK_MODES = ("lockstep", "realtime")
 LEFT_WORLD_HEIGHT = -1.0  # [m] a base this far below the ground's surface has fallen through or off it
 UPRIGHT_TILT = 0.3  # [rad] body tilt under which a robot stands or walks (the controller's falls start far beyond)
@@ -101,6 +106,9 @@ class SimBridgeNode(Node):
         self.pub_clock = self.create_publisher(Clock, "/clock", CONTROL_QOS)
         self.pub_truth = self.create_publisher(Odometry, "/sim/ground_truth/odom", CONTROL_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        # The URDF, once, latched (what robot_state_publisher and RViz read); its joints are /joint_states'.
+        self.pub_description = self.create_publisher(String, "/robot_description", DESCRIPTION_QOS)
+        self.pub_description.publish(String(data=robot_description()))
         self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS, raw=True)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)

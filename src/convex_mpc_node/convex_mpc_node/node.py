@@ -39,7 +39,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, JointState
 from state_estimator_node.estimator import load_estimator_config
-from state_estimator_node.node import OdometryFrontend
+from state_estimator_node.node import OdometryFrontend, OdomTransformPublisher
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
@@ -129,6 +129,7 @@ class ConvexMpcNode(Node):
             self.create_subscription(Odometry, "/odom", self._on_odom, CONTROL_QOS)
         else:
             self.pub_odom = self.create_publisher(Odometry, "/odom", CONTROL_QOS)
+            self.tf = OdomTransformPublisher(self)
         estop_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(Bool, "/estop", self._on_estop, estop_qos)
         self.create_service(Trigger, "~/clear_estop", self._on_clear_estop)
@@ -296,7 +297,9 @@ class ConvexMpcNode(Node):
         if not self.estimate_after_command:
             self._control(stamp_ns, self._previous_velocity)
         if estimate is not None and self._steps % self.odom_every == 0:  # after the command: off its path
-            self.pub_odom.publish(self.frontend.odometry(sensors[0], sensors[1], estimate))
+            odom = self.frontend.odometry(sensors[0], sensors[1], estimate)
+            self.pub_odom.publish(odom)
+            self.tf.publish(odom)
 
     # --- the control step ----------------------------------------------------------------------
     def _control(self, stamp_ns: int, velocity_world: np.ndarray | None,

@@ -17,17 +17,22 @@ from a1_common.node_support import declare_parameters, diagnostic_array, guard_r
 from a1_sim_bridge.conversions import BASE_FRAME, ODOM_FRAME, ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, JointState
 
 from a1_sim_bridge import wire
 from gait_msgs.msg import FootContacts
 from state_estimator_node.estimator import Estimate, EstimatorConfig, SensorSample, VelocityEstimator
+from tf2_msgs.msg import TFMessage
 
 # IMU / contact readings older than this relative to the joint state are not used [s].
 MAX_SENSOR_SKEW = 0.01
 GYRO_VARIANCE = 1e-4  # [(rad/s)^2] reported for the angular part of the twist
+TF_PERIOD_NS = 20_000_000  # /tf at 50 Hz of stamp time: plenty for RViz, and light beside the 500 Hz /odom
+TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)  # what tf2's listeners subscribe with
 
 
 class OdometryFrontend:
@@ -97,6 +102,28 @@ class OdometryFrontend:
         return odom
 
 
+class OdomTransformPublisher:
+    """/tf ``odom -> base_link`` from the /odom being published (REP-105), at most every TF_PERIOD_NS
+    of stamp time (and at once after time went back: a sim reset)."""
+
+    def __init__(self, node: Node) -> None:
+        self.pub = node.create_publisher(TFMessage, "/tf", TF_QOS)
+        self._last_ns: int | None = None
+
+    def publish(self, odom: Odometry) -> None:
+        stamp_ns = ns_from_stamp(odom.header.stamp)
+        if self._last_ns is not None and 0 <= stamp_ns - self._last_ns < TF_PERIOD_NS:
+            return
+        self._last_ns = stamp_ns
+        t = TransformStamped()
+        t.header = odom.header
+        t.child_frame_id = odom.child_frame_id
+        p, q = odom.pose.pose.position, odom.pose.pose.orientation
+        t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = p.x, p.y, p.z
+        t.transform.rotation = q
+        self.pub.publish(TFMessage(transforms=[t]))
+
+
 def estimator_config_from_parameters(params: dict) -> EstimatorConfig:
     params = dict(params)
     for key in ("process_noise", "measurement_noise"):
@@ -117,6 +144,7 @@ class StateEstimatorNode(Node):
         self._last_wall = float("-inf")
         self._published = 0
         self.pub_odom = self.create_publisher(Odometry, "/odom", CONTROL_QOS)
+        self.tf = OdomTransformPublisher(self)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_sim_bridge.wire).
         wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints,
@@ -139,7 +167,9 @@ class StateEstimatorNode(Node):
                                           throttle_duration_sec=1.0)
             return
         self._last_wall = time.monotonic()
-        self.pub_odom.publish(front.odometry(msg, self._imu, est))
+        odom = front.odometry(msg, self._imu, est)
+        self.pub_odom.publish(odom)
+        self.tf.publish(odom)
         self._published += 1
 
     def _publish_diagnostics(self) -> None:
