@@ -16,6 +16,7 @@ import struct
 import subprocess
 import sys
 import time
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,7 @@ from a1_hw_bridge.node import HardwareBridgeNode
 from a1_hw_bridge.protocol import IDLE_MODE, SERVO_MODE, LowCmd, LowState, pack_low_state, unpack_low_cmd
 from a1_hw_bridge.virtual_a1_node import VirtualA1Node
 from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_sim_bridge.node import CONTROL_QOS, DESCRIPTION_QOS
 from diagnostic_msgs.msg import DiagnosticArray
 from graph_helpers import CONFIG, Graph
 from rclpy.executors import SingleThreadedExecutor
@@ -35,6 +36,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from ros_helpers import spin_until
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import String
 
 from gait_msgs.msg import FootContacts, MotorCommand
 
@@ -136,6 +138,9 @@ class FakeController(Node):
             self.create_subscription(FootContacts, "/foot_contacts", self.contacts.append, CONTROL_QOS),
             self.create_subscription(Imu, "/imu/data", self.imu.append, CONTROL_QOS)]
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+        self.descriptions: list[str] = []
+        self.create_subscription(String, "/robot_description", lambda m: self.descriptions.append(m.data),
+                                 DESCRIPTION_QOS)
 
     def command(self) -> JointCommand:
         position = ROBOT.nominal_joint_angles.copy()
@@ -201,6 +206,9 @@ def test_realtime_bridge_safe_start_topics_commands_and_damping_within_50_ms(scr
     first_stand_up = next(t for t, c in received if c.kp[0] == ROBOT.joint_kp[0])
     assert ns_from_stamp(first_sensor.header.stamp) * 1e-9 - first_stand_up >= 0.4 - 0.005
     assert list(first_sensor.name) == list(ROBOT.joint_names) and first_sensor.header.frame_id == "base_link"
+    # The URDF for RViz, latched, naming every joint the bridge publishes.
+    assert node.descriptions and set(ROBOT.joint_names) <= {
+        j.get("name") for j in ET.fromstring(node.descriptions[0]).findall("joint")}
     contacts = node.contacts[-1]
     assert all(contacts.contact) and np.allclose(contacts.normal_force, STANDING_RAW)  # offset 0, 1 N/unit
     imu = node.imu[-1]

@@ -12,13 +12,15 @@ import numpy as np
 from a1_common.config import parameter_defaults
 from a1_common.node_support import declare_parameters, diagnostic_array, run_node
 from a1_common.robot import a1
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_sim_bridge.description import robot_description
+from a1_sim_bridge.node import CONTROL_QOS, DESCRIPTION_QOS
 from a1_sim_bridge.sim import SensorReadings
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import String
 
 from a1_hw_bridge.bridge import BridgeConfig, HardwareBridge, Phase
 from a1_sim_bridge import conversions as cv
@@ -39,6 +41,8 @@ class HardwareBridgeNode(Node):
         self.pub_imu = self.create_publisher(Imu, "/imu/data", CONTROL_QOS)
         self.pub_contacts = self.create_publisher(FootContacts, "/foot_contacts", CONTROL_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.pub_description = self.create_publisher(String, "/robot_description", DESCRIPTION_QOS)
+        self.pub_description.publish(String(data=robot_description()))  # as the sim bridge: RViz sees the robot
         self.pub_clock = (self.create_publisher(Clock, "/clock", CONTROL_QOS)
                           if config.clock_mode == "lockstep" else None)
         self.bridge = HardwareBridge(
