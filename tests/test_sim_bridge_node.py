@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import pytest
 from a1_common.command import JointCommand
@@ -114,6 +116,25 @@ def test_unknown_or_bad_parameters_are_config_errors(rclpy_context):
         SimBridgeNode(context=rclpy_context, parameter_overrides=[Parameter("command_timeout", value=0.0)])
 
 
+@contextlib.contextmanager
+def bridge_and_commander(context, overrides: list[Parameter]):
+    """A sim bridge and a node that publishes /motor_command, spun by one executor, torn down after:
+    yields (bridge, listener node, /motor_command publisher, executor)."""
+    bridge = SimBridgeNode(context=context, parameter_overrides=overrides)
+    listener = Node("listener", context=context)
+    commander = listener.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(bridge)
+    executor.add_node(listener)
+    try:
+        yield bridge, listener, commander, executor
+    finally:
+        executor.shutdown()
+        bridge.shutdown()
+        bridge.destroy_node()
+        listener.destroy_node()
+
+
 @pytest.mark.ros
 @pytest.mark.parametrize("clock_mode", ["lockstep", "realtime"])
 def test_sim_holds_its_start_pose_until_the_first_command(rclpy_context, clock_mode):
@@ -122,15 +143,9 @@ def test_sim_holds_its_start_pose_until_the_first_command(rclpy_context, clock_m
     The first command starts the sim."""
     overrides = [Parameter("clock_mode", value=clock_mode), Parameter("lockstep_timeout", value=0.05),
                  Parameter("settle_time", value=0.1)]
-    bridge = SimBridgeNode(context=rclpy_context, parameter_overrides=overrides)
-    listener = Node("listener", context=rclpy_context)
-    joints = []
-    listener.create_subscription(JointState, "/joint_states", joints.append, CONTROL_QOS)
-    commander = listener.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
-    executor = SingleThreadedExecutor(context=rclpy_context)
-    executor.add_node(bridge)
-    executor.add_node(listener)
-    try:
+    with bridge_and_commander(rclpy_context, overrides) as (bridge, listener, commander, executor):
+        joints = []
+        listener.create_subscription(JointState, "/joint_states", joints.append, CONTROL_QOS)
         assert spin_until(executor, lambda: len(joints) >= 50, 20.0)
         assert bridge.sim.steps == 0
         assert {ns_from_stamp(m.header.stamp) for m in joints} == {0}
@@ -143,11 +158,6 @@ def test_sim_holds_its_start_pose_until_the_first_command(rclpy_context, clock_m
             return bridge.sim.steps >= 5
 
         assert spin_until(executor, commanded_five_steps, 20.0)
-    finally:
-        executor.shutdown()
-        bridge.shutdown()
-        bridge.destroy_node()
-        listener.destroy_node()
 
 
 @pytest.mark.ros
@@ -157,13 +167,7 @@ def test_flight_recorder_writes_the_seconds_before_a_fall(rclpy_context, tmp_pat
     overrides = [Parameter("clock_mode", value="realtime"), Parameter("settle_time", value=0.1),
                  Parameter("flight_recorder_dir", value=str(tmp_path)),
                  Parameter("flight_recorder_seconds", value=1.0)]
-    bridge = SimBridgeNode(context=rclpy_context, parameter_overrides=overrides)
-    listener = Node("listener", context=rclpy_context)
-    commander = listener.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
-    executor = SingleThreadedExecutor(context=rclpy_context)
-    executor.add_node(bridge)
-    executor.add_node(listener)
-    try:
+    with bridge_and_commander(rclpy_context, overrides) as (bridge, _, commander, executor):
         hold = JointCommand.hold(bridge.sim.robot)
 
         def started() -> bool:
@@ -172,11 +176,6 @@ def test_flight_recorder_writes_the_seconds_before_a_fall(rclpy_context, tmp_pat
 
         assert spin_until(executor, started, 20.0)
         assert spin_until(executor, lambda: any(tmp_path.glob("fall_*.npz")), 20.0)
-    finally:
-        executor.shutdown()
-        bridge.shutdown()
-        bridge.destroy_node()
-        listener.destroy_node()
     (path,) = tmp_path.glob("fall_*.npz")
     data = flight_recorder.load(path)
     t = data["time_s"]
@@ -205,25 +204,15 @@ def test_commanded_damping_is_recorded_as_damped_not_as_a_fall(rclpy_context, tm
     overrides = [Parameter("clock_mode", value="lockstep"), Parameter("lockstep_timeout", value=1.0),
                  Parameter("settle_time", value=0.1), Parameter("flight_recorder_dir", value=str(tmp_path)),
                  Parameter("flight_recorder_seconds", value=2.0)]
-    bridge = SimBridgeNode(context=rclpy_context, parameter_overrides=overrides)
-    listener = Node("listener", context=rclpy_context)
-    commander = listener.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
-    executor = SingleThreadedExecutor(context=rclpy_context)
-    executor.add_node(bridge)
-    executor.add_node(listener)
-    hold, damping = JointCommand.hold(bridge.sim.robot), JointCommand.damping()
-    try:
+    with bridge_and_commander(rclpy_context, overrides) as (bridge, _, commander, executor):
+        hold, damping = JointCommand.hold(bridge.sim.robot), JointCommand.damping()
+
         def command() -> bool:  # hold for 0.2 s of sim time, then damping, fresh every step
             cmd = hold if bridge.sim.time < 0.2 else damping
             commander.publish(motor_command_msg(cmd, stamp_from_ns(bridge.sim.steps * STEP_NS)))
             return any(tmp_path.glob("*.npz"))
 
         assert spin_until(executor, command, 30.0)
-    finally:
-        executor.shutdown()
-        bridge.shutdown()
-        bridge.destroy_node()
-        listener.destroy_node()
     assert not any(tmp_path.glob("fall_*.npz"))
     (path,) = tmp_path.glob("damped_*.npz")
     data = flight_recorder.load(path)
