@@ -57,6 +57,6 @@ def test_env_sh_defines_what_a_sourced_ros_install_defines():
     assert result.stdout.split("\n")[-2] == "jazzy 2 3"  # what `ros2 doctor` found unset
 
 
-@pytest.mark.parametrize("script", ["demo.sh", "test.sh", "setup.sh"])
+@pytest.mark.parametrize("script", ["demo.sh", "test.sh", "setup.sh", "bringup.sh", "results.sh"])
 def test_scripts_are_valid_bash(script):
     subprocess.run(["bash", "-n", str(ROOT / "scripts" / script)], check=True)
