@@ -149,7 +149,7 @@ class ConvexMpcNode(Node):
     @staticmethod
     def _store(buffer: dict, msg) -> None:
         stamp_ns = ns_from_stamp(msg.header.stamp)
-        if buffer and stamp_ns < max(buffer) - SIM_RESET_JUMP_NS:
+        if buffer and stamp_ns < next(reversed(buffer)) - SIM_RESET_JUMP_NS:  # the last one stored
             buffer.clear()  # a sim reset: the old run's steps would evict the new run's (smaller) stamps
         buffer[stamp_ns] = msg
         while len(buffer) > 50:  # keep the last 0.1 s of sensor steps
