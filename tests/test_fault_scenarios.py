@@ -311,7 +311,16 @@ def test_estimator_killed_stops_then_safe_stance_then_recovers(scenario):
     held = [t for t, _, _, hold in probe.commands if t >= safe_from]
     speed_at_stance = np.mean([v for t, v, _ in probe.truth if safe_from - 0.1 <= t <= safe_from])
     set_sim_paused(executor, probe, True)  # the new process's start-up wall time must not count
+    def endpoints() -> set[bytes]:  # the estimator's /odom publisher and /joint_states subscription
+        return ({bytes(i.endpoint_gid) for i in probe.get_publishers_info_by_topic("/odom")}
+                | {bytes(i.endpoint_gid) for i in probe.get_subscriptions_info_by_topic("/joint_states")
+                   if i.node_name == "state_estimator"})
+
+    before = endpoints()  # the killed process's may linger until its lease runs out
     graph.restart("state_estimator")
+    # Paused until the new estimator's endpoints are discovered: how long a process takes to start
+    # is the machine's, not the stack's (under a loaded CI run it took seconds of sim time).
+    assert spin_until(executor, lambda: len(endpoints() - before) >= 2, 60.0), "the estimator did not start"
     set_sim_paused(executor, probe, False)
     restarted_at = probe.sim_time()
     run_until(executor, probe, graph, restarted_at + 5.0, wall_timeout=480)

