@@ -55,11 +55,6 @@ class GroundTiles:
             self._client.resetBasePositionAndOrientation(body, [i * TILE_SIZE, j * TILE_SIZE, 0.0], [0, 0, 0, 1])
             self._tiles[(i, j)] = body
 
-    @property
-    def tiles(self) -> dict[tuple[int, int], int]:
-        """Tile grid index -> body id."""
-        return dict(self._tiles)
-
 
 def ground_tile(client, friction: float, soft: bool) -> int:
     """One plane.urdf ground box (top face at z = 0) with the world's ground contact properties."""

@@ -29,10 +29,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 BAG_VERSION = 9  # rosbag2's metadata version in Jazzy
 
 
-def typestore_with(msgtypes: list[str]):
-    """The Jazzy type store plus every type of ``msgtypes`` it lacks, from the installed .msg files
+def register_installed(store, msgtypes: list[str]) -> None:
+    """Add to ``store`` every type of ``msgtypes`` it lacks, from the installed .msg files
     (``share/<package>/msg/<Name>.msg`` under AMENT_PREFIX_PATH), with the types they use."""
-    store = get_typestore(Stores.ROS2_JAZZY)
     pending = [t for t in msgtypes if t not in store.fielddefs]
     found: dict = {}
     while pending:
@@ -43,8 +42,8 @@ def typestore_with(msgtypes: list[str]):
         found.update(types)
         pending += [name for _, fields in types.values() for _, fielddef in fields
                     if (name := _referenced_type(fielddef)) and name not in store.fielddefs]
-    store.register(found)
-    return store
+    if found:
+        store.register(found)
 
 
 def _referenced_type(fielddef: tuple) -> str | None:
@@ -86,11 +85,13 @@ class BagWriter:
         self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
         self._writer.open()
         self._connections: dict[str, object] = {}
+        self._typestore = get_typestore(Stores.ROS2_JAZZY)  # one for the bag, grown as topics come
         self.counts: dict[str, int] = {}
 
     def add_topic(self, topic: str, msgtype: str, qos: list[Qos] | None = None) -> None:
+        register_installed(self._typestore, [msgtype])
         self._connections[topic] = self._writer.add_connection(
-            topic, msgtype, typestore=typestore_with([msgtype]), offered_qos_profiles=qos or [])
+            topic, msgtype, typestore=self._typestore, offered_qos_profiles=qos or [])
         self.counts[topic] = 0
 
     def has_topic(self, topic: str) -> bool:

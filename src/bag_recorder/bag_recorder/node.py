@@ -58,9 +58,9 @@ class RecorderNode(Node):
                 continue  # only subscribers so far: its type and QoS come with its first publisher
             try:
                 cls = message_class(types[0])
-                self.bag.add_topic(topic, types[0], [qos_of(
-                    publishers[0].qos_profile.history.value, publishers[0].qos_profile.depth,
-                    publishers[0].qos_profile.reliability.value, publishers[0].qos_profile.durability.value)])
+                offered = publishers[0].qos_profile
+                self.bag.add_topic(topic, types[0], [qos_of(offered.history.value, offered.depth,
+                                                            offered.reliability.value, offered.durability.value)])
             except (ImportError, AttributeError, ValueError, ConfigError) as exc:
                 self.skipped[topic] = str(exc)
                 self.get_logger().warning(f"not recording {topic} ({types[0]}): {exc}")
