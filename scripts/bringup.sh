@@ -17,7 +17,7 @@
 # parameters from config/; one log per node in log/bringup/<time>/. Ctrl-C or SIGTERM stops them all.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-WORLD=flat CLOCK=realtime POLICY=scheduled BRIDGE=sim WORLD_GIVEN=0 RECORD=0 BAG=""
+WORLD=flat CLOCK=realtime POLICY=learned BRIDGE=sim WORLD_GIVEN=0 RECORD=0 BAG=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --world) WORLD="${2:?--world needs a value}"; WORLD_GIVEN=1; shift 2 ;;

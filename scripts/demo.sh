@@ -13,7 +13,7 @@
 # Ctrl-C or SIGTERM. Per-node logs: log/demo/<node>.log.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-WORLD=flat DURATION=20 CLOCK=lockstep POLICY=scheduled RECORD=1
+WORLD=flat DURATION=20 CLOCK=lockstep POLICY=learned RECORD=1
 while [ $# -gt 0 ]; do
   case "$1" in
     --world) WORLD="${2:?--world needs a value}"; shift 2 ;;

@@ -1,7 +1,8 @@
 """gait_policy node: the 20 Hz gait policy. /cmd_vel and /odom in, /gait/params out.
 
-The policy comes from the ``policy`` parameter (see policy.make_policy): a learned policy file
-(.npz from train_es), the hand-tuned gaits scheduled by speed, or one hand-tuned gait by name.
+The policy comes from the ``policy`` parameter (see policy.make_policy): ``learned`` (the trained
+policy shipped with this package, the default), a learned policy file (.npz from train_es), the
+hand-tuned gaits scheduled by speed (``scheduled``), or one hand-tuned gait by name.
 The measured velocity is /odom's twist (base_link frame) turned into the yaw-aligned frame, the
 frame the policy was trained in.
 Runs on sim time under a sim bridge (``use_sim_time``), like the rest of the graph.
@@ -30,11 +31,12 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from gait_msgs.msg import GaitParams as GaitParamsMsg
+from gait_policy_node.learned_policy import SHIPPED_POLICY
 from gait_policy_node.policy import make_policy
 from gait_policy_node.rollout import heading_frame
 
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-PARAMETERS = {"policy": "scheduled", "rate": 20.0, "cmd_vel_stamped": False}
+PARAMETERS = {"policy": SHIPPED_POLICY, "rate": 20.0, "cmd_vel_stamped": False}
 MAX_DESIRED_VELOCITY = np.array([5.0, 3.0])  # [m/s] x, y: the controller's largest speed limits
 MAX_MEASURED_VELOCITY = 10.0  # [m/s] per axis
 
