@@ -34,6 +34,10 @@ def test_keys_step_the_command_within_the_limits():
         Teleop(steps=(0.0, 0.1, 0.1))
 
 
+def test_ctrl_c_is_the_quit_key():
+    assert KeyDecoder().feed(b"w\x03") == ["w", "q"]
+
+
 def test_escape_sequences_split_across_reads():
     decoder = KeyDecoder()
     assert decoder.feed(b"W\x1b[A\x1b") == ["w", "up"]  # the last sequence is incomplete
@@ -79,7 +83,7 @@ def test_teleop_keyboard_in_a_terminal(rclpy_context):
         os.write(terminal, b"w")
         assert command_becomes((0.1, 0.0, 0.0))
         assert b"forward +0.10 m/s  lateral +0.00 m/s  yaw +0.00 rad/s" in screen
-        os.write(terminal, b"q")
+        os.write(terminal, b"\x03")  # Ctrl-C: a key like q (a SIGINT would end it before the zero command)
         assert command_becomes((0.0, 0.0, 0.0))  # quitting sends a zero command last
         _, status = os.waitpid(pid, 0)
         pid = 0

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Collection, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
@@ -72,6 +75,84 @@ def parameter_defaults(config: Any, prefix: str = "", skip: tuple[str, ...] = ()
     return flat
 
 
+def setting(default: Any, doc: str) -> Any:
+    """A config dataclass field with its one-line description (units in brackets).
+
+    The description is what ``ros2 param describe`` shows for the parameter the field becomes
+    (see :func:`parameter_descriptions`); it lives beside the default so the two cannot drift.
+    """
+    return dataclasses.field(default=default, metadata={"doc": doc})
+
+
+def parameter_descriptions(config: Any, prefix: str = "", skip: tuple[str, ...] = ()) -> dict[str, str]:
+    """The descriptions of the parameters :func:`parameter_defaults` makes of ``config``, by name.
+
+    A field declared without :func:`setting` has none: a ValueError naming it, so that every
+    parameter a node declares is described.
+    """
+    docs = {}
+    for f in dataclasses.fields(config):
+        if f.name in skip or dataclasses.is_dataclass(getattr(config, f.name)):
+            continue
+        if "doc" not in f.metadata:
+            raise ValueError(f"{type(config).__name__}.{f.name} has no description: declare it with setting()")
+        docs[prefix + f.name] = f.metadata["doc"]
+    return docs
+
+
+@dataclasses.dataclass(frozen=True)
+class Constraint:
+    """What a validator accepts for one setting: a number interval (integer or not, for each entry
+    of a list of ``count``) or a set of ``choices``. Recorded by :func:`recording_constraints`."""
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    integer: bool = False
+    count: int | None = None  # a list of this many numbers, each in the interval
+    choices: tuple[str, ...] = ()
+
+    def __str__(self) -> str:
+        if self.choices:
+            return "one of " + " | ".join(self.choices)
+        interval = f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}"
+        kind = "an integer" if self.integer else "a number"
+        return f"{self.count} numbers, each in {interval}" if self.count is not None else f"{kind} in {interval}"
+
+
+_constraints: ContextVar[dict[str, Constraint] | None] = ContextVar("a1_constraints", default=None)
+
+
+@contextmanager
+def recording_constraints(prefix: str = "") -> Iterator[dict[str, Constraint]]:
+    """Collect, by setting name (``prefix`` + the name the validator uses), what every
+    require_range / require_integer / require_numbers / require_choice call inside accepts.
+
+    Why: a node validates its parameters with those calls; recorded while it does, they give the
+    parameter descriptors' ranges, so each range is written once, in its validator. Nested inside
+    another recording (a sub-config whose fields carry a prefix), entries go to the outer one too.
+    """
+    outer = _constraints.get()
+    recorded: dict[str, Constraint] = {}
+    token = _constraints.set(recorded)
+    try:
+        yield recorded
+    finally:
+        _constraints.reset(token)
+        named = {prefix + name: c for name, c in recorded.items()}
+        recorded.clear()
+        recorded.update(named)
+        if outer is not None:
+            outer.update(named)
+
+
+def _record(name: str, constraint: Constraint) -> None:
+    recorded = _constraints.get()
+    if recorded is not None and "[" not in name:  # list entries: the list itself is recorded
+        recorded[name] = constraint
+
+
 def config_dir() -> Path:
     """The repository's ``config/`` folder, or the installed copy of the robot file's folder."""
     from a1_common.robot import default_config_path  # local: robot imports this module
@@ -82,6 +163,7 @@ def config_dir() -> Path:
 def require_range(name: str, value: float, low: float, high: float, *, low_open: bool = False,
                   high_open: bool = False) -> float:
     """Return ``value`` as float if inside the interval, else raise naming the field and range."""
+    _record(name, Constraint(low, high, low_open, high_open))
     try:
         v = float(value)
     except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond any float
@@ -99,6 +181,7 @@ def require_range(name: str, value: float, low: float, high: float, *, low_open:
 
 def require_integer(name: str, value: Any, low: int, high: int) -> int:
     """Return ``value`` if it is an integer (a bool is not) in [low, high], else raise naming the field."""
+    _record(name, Constraint(low, high, integer=True))
     if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= high:
         raise ConfigError(f"{name} must be an integer in [{low}, {high}], got {_short(value)}")
     return value
@@ -107,10 +190,19 @@ def require_integer(name: str, value: Any, low: int, high: int) -> int:
 def require_numbers(name: str, values: Any, count: int, low: float, high: float, *,
                     low_open: bool = False) -> tuple[float, ...]:
     """``count`` numbers, each checked like require_range as ``name[i]``; a wrong count names ``name``."""
+    _record(name, Constraint(low, high, low_open, count=count))
     values = tuple(values) if isinstance(values, (list, tuple)) else (values,)
     if len(values) != count:
         raise ConfigError(f"{name} must have {count} entries, got {len(values)}")
     return tuple(require_range(f"{name}[{i}]", v, low, high, low_open=low_open) for i, v in enumerate(values))
+
+def require_choice(name: str, value: Any, choices: Collection[str]) -> str:
+    """Return ``value`` if it is one of ``choices``, else raise naming the field and the choices."""
+    _record(name, Constraint(choices=tuple(choices)))
+    if not isinstance(value, str) or value not in choices:
+        raise ConfigError(f"{name} must be one of {list(choices)}, got {_short(value)}")
+    return value
+
 
 def _short(value: Any, limit: int = 80) -> str:
     """repr() of a rejected value, cut short so a huge one cannot flood a log line."""

@@ -11,33 +11,39 @@ import gc
 import inspect
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Mapping
 from contextlib import ExitStack
 from typing import Any
 
 import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.context import Context
 from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor, TimeoutException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.subscription import Subscription
 
-from a1_common.config import ConfigError
+from a1_common.config import ConfigError, Constraint
 
 WAITABLES_PERIOD = 0.1  # [s] see DirectExecutor.spin_direct_once
 # Parameters rclpy itself understands; any other override the node did not declare is a typo.
 _RCLPY_PARAMETERS = {"use_sim_time", "start_type_description_service"}
 
 
-def declare_parameters(node, defaults: dict[str, Any]) -> dict[str, Any]:
-    """Declare every parameter of ``defaults`` on ``node``; return the values, typed like the defaults.
+def declare_parameters(node, defaults: dict[str, Any], descriptions: Mapping[str, str]) -> dict[str, Any]:
+    """Declare every parameter of ``defaults`` on ``node`` with its description; return the values,
+    typed like the defaults.
 
     Overrides (``-p`` or ``--params-file``) naming a parameter the node does not have are an error,
-    not silently ignored as rclpy would.
+    not silently ignored as rclpy would. Ranges and ``read_only`` come once the node has validated
+    its values (:func:`constrain_parameters`): declared with them, rclpy would refuse a bad start-up
+    value with its own exception instead of the validator's message naming the allowed range.
     """
+    undescribed = sorted(set(defaults) - set(descriptions))
+    if undescribed:
+        raise ValueError(f"node {node.get_name()}: parameters without a description: {undescribed}")
     overrides = set(getattr(node, "_parameter_overrides", {}))
     unknown = sorted(k for k in overrides - set(defaults) - _RCLPY_PARAMETERS
                      if not k.startswith("qos_overrides."))
@@ -46,10 +52,45 @@ def declare_parameters(node, defaults: dict[str, Any]) -> dict[str, Any]:
                           f"allowed: {sorted(defaults)}")
     values = {}
     for name, default in defaults.items():
-        descriptor = ParameterDescriptor(dynamic_typing=True)
+        descriptor = ParameterDescriptor(description=descriptions[name], dynamic_typing=True)
         value = node.declare_parameter(name, default, descriptor).value
         values[name] = coerce_parameter(name, value, default)
     return values
+
+
+def constrain_parameters(node, names: Collection[str], constraints: Mapping[str, Constraint],
+                         runtime: Collection[str] = ()) -> None:
+    """Complete the descriptors of the parameters ``names`` (declared, values validated): the range
+    their validators accept (``constraints``, from a1_common.config.recording_constraints) as an
+    integer or floating-point range, and ``read_only`` for each one not in ``runtime``.
+
+    What ``ros2 param describe`` shows; rclpy then refuses a read-only or out-of-range
+    ``ros2 param set`` itself, before the node's own validation of runtime values. rclpy's
+    ``use_sim_time`` is described and made read-only as well.
+    """
+    for name in [*names, "use_sim_time"]:  # rclpy's own, read at start-up too: the stack's stamps follow it
+        declared = node.describe_parameter(name)  # rclpy's own object: changed in place, set_descriptor refuses
+        descriptor = ParameterDescriptor(type=declared.type, description=declared.description,
+                                         dynamic_typing=declared.dynamic_typing)
+        if name == "use_sim_time":
+            descriptor.description = "take time from /clock (graphs under a sim bridge) instead of the system clock"
+        constraint = constraints.get(name)
+        notes = []
+        if constraint is not None:
+            notes.append(str(constraint))
+            if constraint.choices or constraint.count is not None:
+                pass  # a string or a list: described in words only (ROS ranges are for one number)
+            elif constraint.integer:
+                descriptor.integer_range = [IntegerRange(from_value=int(constraint.low),
+                                                         to_value=int(constraint.high), step=1)]
+            else:
+                descriptor.floating_point_range = [FloatingPointRange(
+                    from_value=float(constraint.low), to_value=float(constraint.high), step=0.0)]
+        descriptor.read_only = name not in runtime
+        notes.append(f"read at start-up: restart {node.get_name()} with -p {name}:=<value>"
+                     if descriptor.read_only else "settable at runtime (ros2 param set)")
+        descriptor.additional_constraints = "; ".join(notes)
+        node.set_descriptor(name, descriptor)
 
 
 def diagnostic_array(node, status: DiagnosticStatus, values: dict[str, Any],
@@ -81,35 +122,6 @@ def coerce_parameter(name: str, value: Any, default: Any) -> Any:
             raise ConfigError(f"parameter {name} must be a string, got {value!r}")
         return value
     return value
-
-
-def guard_runtime_parameters(node, defaults: dict[str, Any],
-                             validators: dict[str, Callable[[Any], Any]] | None = None) -> None:
-    """Validate runtime parameter changes (``ros2 param set``) on ``node`` like its start-up values.
-
-    A parameter in ``validators`` is converted to the type of its default, then given to its
-    validator (which raises ConfigError naming the parameter and its range); every other parameter
-    of ``defaults`` is read at start-up only, so changing it is refused rather than silently ignored.
-    rclpy's own parameters (``use_sim_time``) are left to rclpy.
-    """
-    validators = validators or {}
-    runtime = sorted(validators) or "none"
-
-    def on_set(params) -> SetParametersResult:
-        for param in params:
-            if param.name in validators:
-                try:
-                    validators[param.name](coerce_parameter(param.name, param.value, defaults[param.name]))
-                except ConfigError as exc:
-                    return SetParametersResult(successful=False, reason=str(exc))
-            elif param.name in defaults:
-                return SetParametersResult(
-                    successful=False,
-                    reason=f"{param.name} is read at start-up only (restart {node.get_name()} with "
-                           f"-p {param.name}:=<value>); runtime parameters: {runtime}")
-        return SetParametersResult(successful=True)
-
-    node.add_on_set_parameters_callback(on_set)
 
 
 class DirectExecutor(SingleThreadedExecutor):

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from a1_common.command import CommandWatchdog, JointCommand
-from a1_common.config import ConfigError, require_range
+from a1_common.config import ConfigError, require_choice, require_integer, require_range, setting
 from a1_common.robot import A1Constants, a1
 from a1_sim_bridge.sim import SensorReadings
 
@@ -75,35 +75,33 @@ class Phase(enum.Enum):
 class BridgeConfig:
     """Bridge settings (the node's parameters); ``validated()`` names a bad field and its range."""
 
-    robot_ip: str = DEFAULT_ROBOT_IP
-    robot_port: int = DEFAULT_ROBOT_PORT
-    local_ip: str = "0.0.0.0"
-    local_port: int = DEFAULT_LOCAL_PORT  # 0: any free port
-    clock_mode: str = "realtime"
-    control_period: float = 0.002  # [s] command period in realtime mode
-    command_timeout: float = 0.04  # [s] no valid /motor_command for this long -> damping
-    lockstep_timeout: float = 0.5  # [s] wall time to wait for the controller's command (lockstep)
-    state_timeout: float = 0.05  # [s] wall time to wait for a state reply before re-sending (lockstep)
-    stand_up_time: float = 1.0  # [s] interpolation from the measured pose to the standing pose
-    stand_hold_time: float = 0.5  # [s] hold, reading the feet for the standing calibration
-    start_joint_tolerance: float = 0.2  # [rad] start refused if a joint reads further outside its limits
-    contact_standing_ratio: float = 0.8  # threshold = ratio x mean standing reading
-    contact_swing_margin: float = 10.0  # [raw] threshold = mean swing reading + margin
-    foot_force_offset: float = 0.0  # [raw] unloaded foot reading until a swing calibration
-    foot_force_scale: float = 1.0  # [N per raw unit] for FootContacts.normal_force
-    swing_recalibration: bool = True  # recalibrate contact thresholds from /gait/state swings
-    realtime_priority: int = 0  # SCHED_FIFO priority 1..99 of the bridge's threads; 0: normal scheduling
+    robot_ip: str = setting(DEFAULT_ROBOT_IP, "IPv4 address of the A1's low-level endpoint (motor controller board)")
+    robot_port: int = setting(DEFAULT_ROBOT_PORT, "the A1's low-level UDP port")
+    local_ip: str = setting("0.0.0.0", "IPv4 address of this computer to bind (0.0.0.0: any)")
+    local_port: int = setting(DEFAULT_LOCAL_PORT, "local UDP port (0: any free port)")
+    clock_mode: str = setting("realtime", "realtime (real robot) | lockstep (virtual A1 only; publishes /clock)")
+    control_period: float = setting(0.002, "command period in realtime mode [s] (0.002: 500 Hz)")
+    command_timeout: float = setting(0.04, "no valid /motor_command for this long -> damping [s]")
+    lockstep_timeout: float = setting(0.5, "lockstep: wall time to wait for the controller's command [s]")
+    state_timeout: float = setting(0.05, "lockstep: wall time to wait for a state reply before re-sending [s]")
+    stand_up_time: float = setting(1.0, "safe start: interpolation from the measured pose to the standing pose [s]")
+    stand_hold_time: float = setting(0.5, "safe start: hold, reading the feet for the contact calibration [s]")
+    start_joint_tolerance: float = setting(
+        0.2, "start refused if a joint reads further than this outside its limits [rad]")
+    contact_standing_ratio: float = setting(0.8, "contact threshold as a fraction of the mean standing foot reading")
+    contact_swing_margin: float = setting(10.0, "contact threshold above the mean swing foot reading [raw units]")
+    foot_force_offset: float = setting(0.0, "foot reading when unloaded, until the first swing calibration [raw units]")
+    foot_force_scale: float = setting(1.0, "foot force per raw unit, for /foot_contacts normal_force [N]")
+    swing_recalibration: bool = setting(True, "recalibrate contact thresholds from the swings in /gait/state")
+    realtime_priority: int = setting(0, "SCHED_FIFO priority 1-99 of the bridge's threads (0: normal scheduling)")
 
     def validated(self) -> BridgeConfig:
-        if self.clock_mode not in CLOCK_MODES:
-            raise ConfigError(f"clock_mode must be one of {list(CLOCK_MODES)}, got {self.clock_mode!r}")
+        require_choice("clock_mode", self.clock_mode, CLOCK_MODES)
         for name in ("robot_ip", "local_ip"):
             if not isinstance(getattr(self, name), str) or not getattr(self, name):
                 raise ConfigError(f"{name} must be an IPv4 address string, got {getattr(self, name)!r}")
-        for name, low in (("robot_port", 1), ("local_port", 0)):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= 65535:
-                raise ConfigError(f"{name} must be an integer in [{low}, 65535], got {value!r}")
+        require_integer("robot_port", self.robot_port, 1, 65535)
+        require_integer("local_port", self.local_port, 0, 65535)
         require_range("control_period", self.control_period, 0.001, 0.01)
         require_range("command_timeout", self.command_timeout, 0.0, 1.0, low_open=True)
         require_range("lockstep_timeout", self.lockstep_timeout, 0.0, 10.0, low_open=True)
@@ -115,9 +113,7 @@ class BridgeConfig:
         require_range("contact_swing_margin", self.contact_swing_margin, 0.0, 1000.0)
         require_range("foot_force_offset", self.foot_force_offset, -32768.0, 32767.0)
         require_range("foot_force_scale", self.foot_force_scale, 0.0, 100.0, low_open=True)
-        prio = self.realtime_priority
-        if not isinstance(prio, int) or isinstance(prio, bool) or not 0 <= prio <= 99:
-            raise ConfigError(f"realtime_priority must be an integer in [0, 99] (0: normal scheduling), got {prio!r}")
+        require_integer("realtime_priority", self.realtime_priority, 0, 99)  # 0: normal scheduling
         return self
 
 

@@ -9,14 +9,13 @@ bridge, encoded by a1_sim_bridge.wire) and /diagnostics; subscribes /motor_comma
 from __future__ import annotations
 
 import numpy as np
-from a1_common.config import parameter_defaults
-from a1_common.node_support import declare_parameters, diagnostic_array, run_node
+from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints
+from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
 from a1_common.robot import a1
 from a1_sim_bridge.description import robot_description
 from a1_sim_bridge.node import CONTROL_QOS, DESCRIPTION_QOS
 from a1_sim_bridge.sim import SensorReadings
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
@@ -34,7 +33,11 @@ class HardwareBridgeNode(Node):
     def __init__(self, **node_kwargs) -> None:
         """``node_kwargs`` go to rclpy's Node (tests pass ``context`` and ``parameter_overrides``)."""
         super().__init__("hw_bridge", **node_kwargs)
-        config = BridgeConfig(**declare_parameters(self, parameter_defaults(BridgeConfig()))).validated()
+        defaults = BridgeConfig()
+        with recording_constraints() as constraints:
+            params = declare_parameters(self, parameter_defaults(defaults), parameter_descriptions(defaults))
+            config = BridgeConfig(**params).validated()
+        constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.joint_names = list(a1().joint_names)
         self.encoders = wire.SensorEncoders(self.joint_names, cv.BASE_FRAME, cv.IMU_FRAME)
         self.pub_joints = self.create_publisher(JointState, "/joint_states", CONTROL_QOS)
@@ -51,7 +54,6 @@ class HardwareBridgeNode(Node):
         self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS, raw=True)
         if config.swing_recalibration:
             self.create_subscription(GaitState, "/gait/state", self._on_gait_state, CONTROL_QOS)
-        self.add_on_set_parameters_callback(refuse_runtime_changes)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
             f"A1 link {self.bridge.link.local_address[0]}:{self.bridge.link.local_address[1]} -> "
@@ -110,13 +112,6 @@ class HardwareBridgeNode(Node):
     def shutdown(self) -> None:
         """Stop the link thread; the last datagrams sent put the motors in damping."""
         self.bridge.stop()
-
-
-def refuse_runtime_changes(params) -> SetParametersResult:
-    """Every parameter is read once at start-up: a runtime change is refused, never silently ignored."""
-    names = sorted(p.name for p in params)
-    return SetParametersResult(successful=False,
-                               reason=f"{names} cannot change at runtime: restart the node with the new value")
 
 
 def main(args: list[str] | None = None) -> None:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from a1_common.command import CommandError, JointCommand
-from a1_common.config import ConfigError, require_range
+from a1_common.config import ConfigError, require_choice, require_integer, require_range, setting
 from a1_sim_bridge.sim import A1Sim, SimConfig
 
 from a1_hw_bridge.link import LinkStats, Pacer, ServerSocket, accept_command
@@ -44,24 +44,21 @@ COMMAND_LOSS_BEHAVIOURS = ("hold", "damping", "zero_torque")
 class VirtualA1Config:
     """Settings of the robot side; ``validated()`` names a bad field and its range."""
 
-    host: str = "127.0.0.1"
-    port: int = DEFAULT_ROBOT_PORT  # 0: any free port
-    clock_mode: str = "realtime"
-    packet_loss: float = 0.0  # probability per datagram, each direction
-    loss_seed: int = 0
-    on_command_loss: str = "damping"
-    command_loss_timeout: float = 0.1  # [s] of robot time
-    foot_force_gain: float = 1.0  # [raw units per N]
-    foot_force_offset: float = 15.0  # [raw units] reading of an unloaded foot
+    host: str = setting("127.0.0.1", "IPv4 address the virtual A1 serves on")
+    port: int = setting(DEFAULT_ROBOT_PORT, "UDP port the virtual A1 serves on (0: any free port)")
+    clock_mode: str = setting("realtime", "realtime: steps on the wall clock | lockstep: each step waits for a command")
+    packet_loss: float = setting(0.0, "probability of losing each datagram, each direction")
+    loss_seed: int = setting(0, "seed of the injected datagram losses")
+    on_command_loss: str = setting(
+        "damping", "motors after command_loss_timeout without commands: hold | damping | zero_torque")
+    command_loss_timeout: float = setting(0.1, "no command for this long -> on_command_loss [s of robot time]")
+    foot_force_gain: float = setting(1.0, "foot sensor reading per newton [raw units per N]")
+    foot_force_offset: float = setting(15.0, "foot sensor reading when unloaded [raw units]")
 
     def validated(self) -> VirtualA1Config:
-        if self.clock_mode not in CLOCK_MODES:
-            raise ConfigError(f"clock_mode must be one of {list(CLOCK_MODES)}, got {self.clock_mode!r}")
-        if self.on_command_loss not in COMMAND_LOSS_BEHAVIOURS:
-            raise ConfigError(f"on_command_loss must be one of {list(COMMAND_LOSS_BEHAVIOURS)}, "
-                              f"got {self.on_command_loss!r}")
-        if not isinstance(self.port, int) or isinstance(self.port, bool) or not 0 <= self.port <= 65535:
-            raise ConfigError(f"port must be an integer in [0, 65535], got {self.port!r}")
+        require_choice("clock_mode", self.clock_mode, CLOCK_MODES)
+        require_choice("on_command_loss", self.on_command_loss, COMMAND_LOSS_BEHAVIOURS)
+        require_integer("port", self.port, 0, 65535)
         if not isinstance(self.loss_seed, int) or isinstance(self.loss_seed, bool) or self.loss_seed < 0:
             raise ConfigError(f"loss_seed must be a non-negative integer, got {self.loss_seed!r}")
         require_range("packet_loss", self.packet_loss, 0.0, 1.0, high_open=True)

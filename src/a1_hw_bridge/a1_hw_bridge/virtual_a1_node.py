@@ -9,20 +9,25 @@ from __future__ import annotations
 
 import threading
 import traceback
+from dataclasses import dataclass
 
-from a1_common.config import parameter_defaults
-from a1_common.node_support import declare_parameters, diagnostic_array, run_node
+from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, setting
+from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
 from a1_sim_bridge.node import CONTROL_QOS
 from a1_sim_bridge.sim import SensorNoise, SimConfig
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
-from a1_hw_bridge.node import refuse_runtime_changes
 from a1_hw_bridge.virtual_a1 import VirtualA1, VirtualA1Config, VirtualA1Server
 from a1_sim_bridge import conversions as cv
 
-NODE_PARAMETERS = {"publish_ground_truth": True}
+
+@dataclass(frozen=True)
+class NodeParameters:
+    """The node's own parameters; the rest configure the robot side and its simulation."""
+
+    publish_ground_truth: bool = setting(True, "publish the true base state on /sim/ground_truth/odom")
 
 
 class VirtualA1Node(Node):
@@ -30,16 +35,20 @@ class VirtualA1Node(Node):
         super().__init__("virtual_a1", **node_kwargs)
         robot_defaults = parameter_defaults(VirtualA1Config())
         sim_defaults = {**parameter_defaults(SimConfig()), **parameter_defaults(SensorNoise())}
-        params = declare_parameters(self, {**robot_defaults, **sim_defaults, **NODE_PARAMETERS})
-        config = VirtualA1Config(**{k: params[k] for k in robot_defaults}).validated()
-        sim_config = SimConfig.from_parameters({k: params[k] for k in sim_defaults})
-        self.robot = VirtualA1(config, sim_config)
+        configs = (VirtualA1Config(), SimConfig(), SensorNoise(), NodeParameters())
+        defaults = {k: v for c in configs for k, v in parameter_defaults(c).items()}
+        descriptions = {k: v for c in configs for k, v in parameter_descriptions(c).items()}
+        with recording_constraints() as constraints:
+            params = declare_parameters(self, defaults, descriptions)
+            config = VirtualA1Config(**{k: params[k] for k in robot_defaults}).validated()
+            sim_config = SimConfig.from_parameters({k: params[k] for k in sim_defaults})
+            self.robot = VirtualA1(config, sim_config)
+        constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.publish_ground_truth = bool(params["publish_ground_truth"])
         self.pub_truth = self.create_publisher(Odometry, "/sim/ground_truth/odom", CONTROL_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.server = VirtualA1Server(self.robot, on_tick=self._on_tick)
         self.failure: Exception | None = None
-        self.add_on_set_parameters_callback(refuse_runtime_changes)
         self.create_timer(1.0, self._publish_diagnostics)
         host, port = self.server.address
         self.get_logger().info(

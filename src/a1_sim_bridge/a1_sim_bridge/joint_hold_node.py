@@ -8,10 +8,12 @@ bridge's lockstep mode waits for.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from a1_common.command import JointCommand
-from a1_common.config import require_range
-from a1_common.node_support import declare_parameters, guard_runtime_parameters, run_node
+from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
+from a1_common.node_support import constrain_parameters, declare_parameters, run_node
 from a1_common.robot import a1
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -21,12 +23,21 @@ from a1_sim_bridge.node import CONTROL_QOS
 from gait_msgs.msg import MotorCommand
 
 
+@dataclass(frozen=True)
+class NodeParameters:
+    ramp_time: float = setting(1.0, "ramp from the first measured pose to the standing pose [s]")
+
+
+PARAMETERS = NodeParameters()
+
+
 class JointHoldNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("joint_hold", **node_kwargs)
-        ramp = declare_parameters(self, {"ramp_time": 1.0})["ramp_time"]
-        guard_runtime_parameters(self, {"ramp_time": 1.0})
-        self.ramp_time = require_range("ramp_time", ramp, 0.0, 10.0)  # [s]
+        with recording_constraints() as constraints:
+            params = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            self.ramp_time = require_range("ramp_time", params["ramp_time"], 0.0, 10.0)  # [s]
+        constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.robot = a1()
         self._start: tuple[int, np.ndarray] | None = None
         self._last_ns = -1

@@ -8,9 +8,10 @@ when ``duration`` > 0, printing a one-line summary, so scripts can use it as a c
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
-from a1_common.config import require_range
-from a1_common.node_support import declare_parameters, guard_runtime_parameters, run_node
+from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
+from a1_common.node_support import constrain_parameters, declare_parameters, run_node
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
@@ -28,14 +29,23 @@ def roll_pitch(q) -> tuple[float, float]:
     return roll, pitch
 
 
+@dataclass(frozen=True)
+class NodeParameters:
+    print_period: float = setting(0.5, "print a line every this much sensor time [s]")
+    duration: float = setting(0.0, "stop after this much sensor time [s] (0: run until stopped)")
+
+
+PARAMETERS = NodeParameters()
+
+
 class MonitorNode(Node):
-    def __init__(self) -> None:
-        super().__init__("robot_state_monitor")
-        # print_period [s] of sensor time; duration [s] of sensor time, 0 = run until stopped.
-        params = declare_parameters(self, {"print_period": 0.5, "duration": 0.0})
-        guard_runtime_parameters(self, {"print_period": 0.5, "duration": 0.0})
-        self.period = require_range("print_period", params["print_period"], 0.0, 3600.0, low_open=True)
-        self.duration = require_range("duration", params["duration"], 0.0, 1e6)
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("robot_state_monitor", **node_kwargs)
+        with recording_constraints() as constraints:
+            params = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            self.period = require_range("print_period", params["print_period"], 0.0, 3600.0, low_open=True)
+            self.duration = require_range("duration", params["duration"], 0.0, 1e6)
+        constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.joints = self.imu = self.contacts = self.truth = None
         self.first_ns = None
         self.last_print_ns = None

@@ -24,13 +24,28 @@ import math
 import threading
 import time
 import traceback
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import rclpy
 from a1_common.command import CommandWatchdog, MotorMode
-from a1_common.config import ConfigError, parameter_defaults, require_range
-from a1_common.node_support import coerce_parameter, declare_parameters, diagnostic_array, run_node
+from a1_common.config import (
+    ConfigError,
+    parameter_defaults,
+    parameter_descriptions,
+    recording_constraints,
+    require_choice,
+    require_range,
+    setting,
+)
+from a1_common.node_support import (
+    coerce_parameter,
+    constrain_parameters,
+    declare_parameters,
+    diagnostic_array,
+    run_node,
+)
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
@@ -56,40 +71,49 @@ DESCRIPTION_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 CLOCK_MODES = ("lockstep", "realtime")
 LEFT_WORLD_HEIGHT = -1.0  # [m] a base this far below the ground's surface has fallen through or off it
 UPRIGHT_TILT = 0.3  # [rad] body tilt under which a robot stands or walks (the controller's falls start far beyond)
-NODE_PARAMETERS = {  # node-only parameters and defaults; the rest configure A1Sim
-    "clock_mode": "lockstep",
-    "command_timeout": 0.05,
-    "lockstep_timeout": 0.5,
-    "real_time_factor": 1.0,
-    "publish_ground_truth": True,
-    "flight_recorder_dir": "",
-    "flight_recorder_seconds": 5.0,
-    "fall_height": 0.18,
-}
+RUNTIME_PARAMETERS = ("world", "seed")  # applied at the next ~/reset
+
+
+@dataclass(frozen=True)
+class NodeParameters:
+    """The node's own parameters; the rest configure A1Sim (SimConfig, SensorNoise)."""
+
+    clock_mode: str = setting("lockstep", "lockstep: each step waits for its /motor_command | realtime: wall clock")
+    command_timeout: float = setting(0.05, "no valid /motor_command for this long -> damping [s]")
+    lockstep_timeout: float = setting(0.5, "lockstep: wall time to wait for a step's /motor_command [s]")
+    real_time_factor: float = setting(1.0, "realtime: sim seconds per wall second")
+    publish_ground_truth: bool = setting(True, "publish the true base state on /sim/ground_truth/odom")
+    flight_recorder_dir: str = setting("", "write the last seconds before a fall here as .npz ('': off)")
+    flight_recorder_seconds: float = setting(5.0, "seconds the flight recorder keeps [s]")
+    fall_height: float = setting(0.18, "base height under which the robot has fallen [m]")
+
+
+NODE_PARAMETERS = parameter_defaults(NodeParameters())
 
 
 class SimBridgeNode(Node):
     def __init__(self, **node_kwargs) -> None:
         """``node_kwargs`` go to rclpy's Node (tests pass ``context`` and ``parameter_overrides``)."""
         super().__init__("sim_bridge", **node_kwargs)
-        params = declare_parameters(self, {**_sim_defaults(SimConfig()), **NODE_PARAMETERS})
-        self.clock_mode = params["clock_mode"]
-        if self.clock_mode not in CLOCK_MODES:
-            raise ConfigError(f"clock_mode must be one of {list(CLOCK_MODES)}, got {self.clock_mode!r}")
-        self.sim = A1Sim(SimConfig.from_parameters(params, ignore=tuple(NODE_PARAMETERS)))
-        self.watchdog = CommandWatchdog(params["command_timeout"])
-        self.lockstep_timeout = require_range("lockstep_timeout", params["lockstep_timeout"], 0.0, 10.0,
-                                              low_open=True)
-        # realtime: sim seconds per wall second. Under 1 a computer too slow for the graph at full speed
-        # still runs it with every deadline scaled alike (commands are stamped in sim time).
-        self.real_time_factor = require_range("real_time_factor", params["real_time_factor"], 0.0, 1.0,
-                                              low_open=True)
-        self.publish_ground_truth = bool(params["publish_ground_truth"])
-        # Flight recorder (off with no directory): the last seconds before a fall, as an .npz.
-        self.recorder_dir = str(params["flight_recorder_dir"])
-        self.recorder = (FlightRecorder(params["flight_recorder_seconds"], self.sim.config.time_step)
-                         if self.recorder_dir else None)
-        self.fall_height = require_range("fall_height", params["fall_height"], 0.0, 1.0)
+        descriptions = {**_sim_descriptions(SimConfig()), **parameter_descriptions(NodeParameters())}
+        with recording_constraints() as constraints:
+            params = declare_parameters(self, {**_sim_defaults(SimConfig()), **NODE_PARAMETERS}, descriptions)
+            self.clock_mode = require_choice("clock_mode", params["clock_mode"], CLOCK_MODES)
+            self.sim = A1Sim(SimConfig.from_parameters(params, ignore=tuple(NODE_PARAMETERS)))
+            self.watchdog = CommandWatchdog(params["command_timeout"])
+            self.lockstep_timeout = require_range("lockstep_timeout", params["lockstep_timeout"], 0.0, 10.0,
+                                                  low_open=True)
+            # realtime: sim seconds per wall second. Under 1 a computer too slow for the graph at full
+            # speed still runs it with every deadline scaled alike (commands are stamped in sim time).
+            self.real_time_factor = require_range("real_time_factor", params["real_time_factor"], 0.0, 1.0,
+                                                  low_open=True)
+            self.publish_ground_truth = bool(params["publish_ground_truth"])
+            # Flight recorder (off with no directory): the last seconds before a fall, as an .npz.
+            self.recorder_dir = str(params["flight_recorder_dir"])
+            recorder = FlightRecorder(params["flight_recorder_seconds"], self.sim.config.time_step)
+            self.recorder = recorder if self.recorder_dir else None
+            self.fall_height = require_range("fall_height", params["fall_height"], 0.0, 1.0)
+        constrain_parameters(self, params, constraints, runtime=RUNTIME_PARAMETERS)
         self._recorded_stamp_ns = -1
         self._fall_recorded = False  # one file per fall: re-armed when the base is up again, or on reset
         self._applied_damping = False
@@ -183,13 +207,11 @@ class SimBridgeNode(Node):
         return response
 
     def _on_set_parameters(self, params) -> SetParametersResult:
-        """Validate runtime changes; world/seed apply at the next ~/reset."""
-        allowed_runtime = {"world", "seed"}
+        """Validate runtime changes (world, seed: applied at the next ~/reset; the other parameters
+        are read-only descriptors, refused by rclpy)."""
         for param in params:
-            if param.name not in allowed_runtime:
-                return SetParametersResult(successful=False,
-                                           reason=f"{param.name} cannot change at runtime; "
-                                                  f"runtime parameters: {sorted(allowed_runtime)}")
+            if param.name not in RUNTIME_PARAMETERS:
+                continue
             try:
                 value = coerce_parameter(param.name, param.value, getattr(self.sim.config, param.name))
                 dataclasses.replace(self.sim.config, **{param.name: value}).validated()
@@ -390,6 +412,11 @@ class SimBridgeNode(Node):
 def _sim_defaults(config: SimConfig) -> dict:
     """SimConfig as the flat parameter mapping the node declares (noise fields inlined)."""
     return {**parameter_defaults(config), **parameter_defaults(config.noise)}
+
+
+def _sim_descriptions(config: SimConfig) -> dict:
+    """The descriptions of :func:`_sim_defaults`, by parameter name."""
+    return {**parameter_descriptions(config), **parameter_descriptions(config.noise)}
 
 
 def main(args: list[str] | None = None) -> None:

@@ -20,7 +20,7 @@ import numpy as np
 import pybullet
 import pybullet_data
 from a1_common.command import JointCommand
-from a1_common.config import ConfigError, require_integer, require_range
+from a1_common.config import ConfigError, require_choice, require_integer, require_range, setting
 from a1_common.robot import NUM_LEGS, A1Constants, a1
 from pybullet_utils import bullet_client
 
@@ -34,38 +34,37 @@ START_CLEARANCE = 0.32  # base COM height at which the robot is dropped, above t
 class SensorNoise:
     """Optional sensor imperfections (all zero by default). Standard deviations in SI units."""
 
-    joint_position_noise: float = 0.0  # [rad]
-    joint_velocity_noise: float = 0.0  # [rad/s]
-    gyro_noise: float = 0.0  # [rad/s]
-    gyro_bias: float = 0.0  # [rad/s] on each axis
-    accel_noise: float = 0.0  # [m/s^2]
-    accel_bias: float = 0.0  # [m/s^2] on each axis
+    joint_position_noise: float = setting(0.0, "joint position noise, standard deviation [rad]")
+    joint_velocity_noise: float = setting(0.0, "joint velocity noise, standard deviation [rad/s]")
+    gyro_noise: float = setting(0.0, "gyroscope noise, standard deviation [rad/s]")
+    gyro_bias: float = setting(0.0, "gyroscope bias, same on each axis [rad/s]")
+    accel_noise: float = setting(0.0, "accelerometer noise, standard deviation [m/s^2]")
+    accel_bias: float = setting(0.0, "accelerometer bias, same on each axis [m/s^2]")
     # Latencies [s], rounded to whole time steps: joint encoders, IMU, foot contact sensors.
-    joint_latency: float = 0.0
-    imu_latency: float = 0.0
-    contact_latency: float = 0.0
+    joint_latency: float = setting(0.0, "delay of joint readings, a multiple of time_step [s]")
+    imu_latency: float = setting(0.0, "delay of IMU readings, a multiple of time_step [s]")
+    contact_latency: float = setting(0.0, "delay of foot contact readings, a multiple of time_step [s]")
 
 
 @dataclass
 class SimConfig:
     """Simulation settings; ``validated()`` raises ConfigError naming a bad field and its range."""
 
-    world: str = "flat"
-    seed: int = 0
-    gui: bool = False
-    time_step: float = 0.002  # [s]
-    solver_iterations: int = 30
-    ground_friction: float = 0.8  # effective foot-ground friction coefficient
-    step_height: float = 0.08  # [m]
-    step_distance: float = 1.0  # [m]
-    rough_amplitude: float = 0.04  # [m]
-    slope_angle: float = 0.1  # [rad], in (0, 0.5]: uphill along +x
-    settle_time: float = 1.0  # [s]
+    world: str = setting("flat", "simulated world: flat | step | rough | soft | slope")
+    seed: int = setting(0, "terrain and sensor-noise seed")
+    gui: bool = setting(False, "open the PyBullet GUI window (needs a display)")
+    time_step: float = setting(0.002, "physics step, one sensor sample per step [s] (0.002: 500 Hz)")
+    solver_iterations: int = setting(30, "PyBullet constraint solver iterations per step")
+    ground_friction: float = setting(0.8, "effective foot-ground Coulomb friction coefficient")
+    step_height: float = setting(0.08, "'step' world: height of the step [m]")
+    step_distance: float = setting(1.0, "'step' world: distance of the step edge ahead of the robot [m]")
+    rough_amplitude: float = setting(0.04, "'rough' world: largest terrain height [m]")
+    slope_angle: float = setting(0.1, "'slope' world: incline, uphill along +x [rad]")
+    settle_time: float = setting(1.0, "on reset: joint PD hold that settles the robot [s]")
     noise: SensorNoise = field(default_factory=SensorNoise)
 
     def validated(self) -> SimConfig:
-        if self.world not in WORLD_NAMES:
-            raise ConfigError(f"world must be one of {list(WORLD_NAMES)}, got {self.world!r}")
+        require_choice("world", self.world, WORLD_NAMES)
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
             raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
         require_range("time_step", self.time_step, 1e-4, 0.01)

@@ -16,16 +16,31 @@ from __future__ import annotations
 
 import importlib
 import time
+from dataclasses import dataclass
 
-from a1_common.config import ConfigError, require_range
-from a1_common.node_support import declare_parameters, diagnostic_array, guard_runtime_parameters, run_node
+from a1_common.config import (
+    ConfigError,
+    parameter_defaults,
+    parameter_descriptions,
+    recording_constraints,
+    require_range,
+    setting,
+)
+from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from bag_recorder.bag import BagWriter, qos_of
 
-PARAMETERS = {"output": "", "discovery_period": 0.5}
+
+@dataclass(frozen=True)
+class NodeParameters:
+    output: str = setting("", "bag directory to create ('': bag_<date>_<time> here)")
+    discovery_period: float = setting(0.5, "look for new topics this often [s]")
+
+
+PARAMETERS = NodeParameters()
 RECORD_DEPTH = 1000  # messages each subscription holds while the writer is busy (2 s of a 500 Hz topic)
 
 
@@ -38,14 +53,15 @@ def message_class(msgtype: str):
 class RecorderNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("bag_recorder", **node_kwargs)
-        p = declare_parameters(self, PARAMETERS)
-        period = require_range("discovery_period", p["discovery_period"], 0.05, 60.0)
+        with recording_constraints() as constraints:
+            p = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            period = require_range("discovery_period", p["discovery_period"], 0.05, 60.0)
+        constrain_parameters(self, p, constraints)  # all read-only: read at start-up
         self.bag = BagWriter(p["output"] or time.strftime("bag_%Y%m%d_%H%M%S"))
         self.skipped: dict[str, str] = {}  # topic -> why it is not recorded
         self.create_timer(period, self._discover)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(1.0, self._publish_diagnostics)
-        guard_runtime_parameters(self, PARAMETERS)
         self.get_logger().info(f"recording every topic into {self.bag.path.resolve()}")
         self._discover()
 

@@ -21,9 +21,12 @@ from a1_common.config import (
     config_dir,
     load_node_parameters,
     parameter_defaults,
+    parameter_descriptions,
+    recording_constraints,
     require_integer,
     require_numbers,
     require_range,
+    setting,
 )
 from a1_common.kinematics import foot_positions, inverse_kinematics, leg_kinematics, quat_to_matrix
 from a1_common.robot import LEG_SIGNS, NUM_LEGS, A1Constants, a1
@@ -39,32 +42,34 @@ MAX_CATCH_UP = 0.1
 
 @dataclass(frozen=True)
 class ControllerConfig:
-    control_period: float = 0.002  # [s]
-    body_height: float = 0.26  # desired COM height [m]
-    swing_apex_height: float = 0.10  # mid-swing foot height above the landing height [m]
+    control_period: float = setting(0.002, "control step period [s] (0.002: 500 Hz)")
+    body_height: float = setting(0.26, "desired COM height above the ground [m]")
+    swing_apex_height: float = setting(0.10, "mid-swing foot height above the landing height [m]")
     # Raibert landing offset = v T_stance / 2 + gain (v - v_cmd), clipped per axis [m].
-    raibert_feedback_gain: float = 0.03  # [s]
-    raibert_clip: tuple[float, float] = (0.15, 0.10)
+    raibert_feedback_gain: float = setting(0.03, "Raibert landing offset per unit of velocity error [s]")
+    raibert_clip: tuple[float, float] = setting((0.15, 0.10), "largest Raibert landing offset along x, y [m]")
     # Whole-robot COM relative to the trunk COM (base frame) [m], measured on the pybullet_data A1:
     # the MPC's lever arms are taken from the true COM.
-    com_offset: tuple[float, float, float] = (-0.0186, -0.0014, -0.0196)
+    com_offset: tuple[float, float, float] = setting(
+        (-0.0186, -0.0014, -0.0196), "whole-robot COM relative to the trunk COM, base frame x, y, z [m]")
     # Drift correction: the integrated command-minus-velocity error is clamped to this [m], [rad].
-    max_position_error: float = 0.05
-    max_yaw_error: float = 0.1
+    max_position_error: float = setting(0.05, "clamp of the integrated command-minus-velocity drift correction [m]")
+    max_yaw_error: float = setting(0.1, "clamp of the integrated yaw drift correction [rad]")
     # Solve the MPC every this many control steps (1: every step, as the paper); in between, and
     # never across a change of the measured contact set, the last forces are reused. Larger values
     # trade force-plan freshness for CPU, for realtime graphs on small computers.
-    mpc_period_steps: int = 1
+    mpc_period_steps: int = setting(1, "solve the MPC every N control steps (1: every step, as the paper)")
     # Solve the MPC in a worker process (mpc_worker.py: its own GIL, below the step's priority):
     # the control step never waits for a solve and uses the newest finished one, a few ms old. For
     # realtime graphs on small computers; off in lockstep and training, where results must not
     # depend on timing.
-    mpc_async: bool = False
+    mpc_async: bool = setting(False, "solve the MPC in a worker process, never waited for (realtime graphs)")
     # Joint positions are predicted this far ahead (q + dq * t) before use [s]: the command acts
     # on a later state than the sensors saw (transport, compute, actuation). Measured in the
     # fault scenarios: without it 20 ms of joint-state latency makes the robot fall; 0.01 s
     # tolerates 0 to 20 ms. 0: the paper's controller.
-    latency_compensation: float = 0.01
+    latency_compensation: float = setting(
+        0.01, "joint positions predicted this far ahead, q + dq t [s] (0: the paper's controller)")
     mpc: MpcConfig = field(default_factory=MpcConfig)
 
     def validated(self) -> ControllerConfig:
@@ -91,6 +96,12 @@ def controller_parameter_defaults() -> dict:
     return {**parameter_defaults(defaults), **parameter_defaults(defaults.mpc, prefix="mpc_")}
 
 
+def controller_parameter_descriptions() -> dict:
+    """The descriptions of :func:`controller_parameter_defaults`, by parameter name."""
+    defaults = ControllerConfig()
+    return {**parameter_descriptions(defaults), **parameter_descriptions(defaults.mpc, prefix="mpc_")}
+
+
 def controller_config_from_parameters(params: dict, source: str = "parameters") -> ControllerConfig:
     """ControllerConfig from flat parameters; unknown keys and bad values name the key."""
     mpc_fields = {f.name for f in dataclasses.fields(MpcConfig)}
@@ -106,7 +117,8 @@ def controller_config_from_parameters(params: dict, source: str = "parameters") 
             allowed = sorted(top_fields | {"mpc_" + f for f in mpc_fields})
             raise ConfigError(f"{source}: unknown controller parameter '{key}'; allowed: {allowed}")
     try:
-        mpc = MpcConfig(**mpc_args).validated()
+        with recording_constraints(prefix="mpc_"):  # the validator names fields, the node mpc_<field>
+            mpc = MpcConfig(**mpc_args).validated()
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None
     try:

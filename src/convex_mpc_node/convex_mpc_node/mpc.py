@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import osqp
 import scipy.sparse as sp
-from a1_common.config import require_integer, require_numbers, require_range
+from a1_common.config import require_integer, require_numbers, require_range, setting
 from a1_common.robot import NUM_LEGS
 
 NX = 13  # state size (with the gravity entry)
@@ -39,30 +39,33 @@ ROWS_PER_FOOT = 5
 
 @dataclass(frozen=True)
 class MpcConfig:
-    horizon: int = 10  # steps
-    step: float = 0.025  # [s] between horizon steps
+    horizon: int = setting(10, "MPC horizon [steps]")
+    step: float = setting(0.025, "time between MPC horizon steps [s]")
     # Diagonal state weights [roll, pitch, yaw, x, y, z, wx, wy, wz, vx, vy, vz].
     # Reference values except: x, y, yaw tracked (the reference's zeros let a standing robot drift)
     # and v_x, v_y at 1 (its "alternative" weights), for tighter speed tracking.
-    state_weights: tuple[float, ...] = (1.0, 1.0, 0.5, 2.0, 2.0, 10.0, 0.0, 0.0, 0.1, 1.0, 1.0, 0.0)
+    state_weights: tuple[float, ...] = setting(
+        (1.0, 1.0, 0.5, 2.0, 2.0, 10.0, 0.0, 0.0, 0.1, 1.0, 1.0, 0.0),
+        "MPC state weights: roll, pitch, yaw, x, y, z, wx, wy, wz, vx, vy, vz")
     # alpha: cost alpha |u|^2. The reference's 1e-5 makes the finite-horizon optimum trade height
     # for smaller forces late in the horizon, so the first force overshoots m g by about 20% when
     # standing still; 1e-6 keeps it within 5% (tests/test_mpc.py).
-    force_weight: float = 1e-6
-    mass: float = 12.458  # [kg] the simulated robot's mass (pybullet_data A1)
+    force_weight: float = setting(1e-6, "MPC weight alpha of the force cost alpha |u|^2")
+    mass: float = setting(12.458, "robot mass in the MPC model [kg]")
     # Composite inertia of the pybullet_data A1 about its COM at the nominal stance, measured from
     # the simulator's link masses and inertias (the reference used 0.17, 0.57, 0.64 for a heavier URDF).
-    inertia: tuple[float, float, float] = (0.13, 0.35, 0.39)  # body-frame diagonal [kg m^2]
-    friction_coefficient: float = 0.6  # mu of the friction pyramid
+    inertia: tuple[float, float, float] = setting(
+        (0.13, 0.35, 0.39), "body-frame diagonal inertia about the COM in the MPC model [kg m^2]")
+    friction_coefficient: float = setting(0.6, "friction coefficient mu of the MPC's friction pyramid")
     # Normal force of a stance foot [N]: at least 0.1 m g as in the reference (a planned stance
     # foot keeps pressing), at most 250 N rather than the reference's 10 m g: about what the
     # 33.5 N m knee can push through a 0.2 m calf, so the plan stays within the motors' reach.
-    min_normal_force: float = 12.0
-    max_normal_force: float = 250.0
-    gravity: float = 9.81  # [m/s^2]
-    eps: float = 1e-3  # OSQP absolute and relative tolerance (the reference's OSQP setting)
-    max_iter: int = 200  # OSQP iterations per solve (warm-started at 500 Hz)
-    max_violation: float = 1.0  # [N] largest constraint violation accepted from an unfinished solve
+    min_normal_force: float = setting(12.0, "least normal force of a planned stance foot [N]")
+    max_normal_force: float = setting(250.0, "largest normal force of a stance foot [N]")
+    gravity: float = setting(9.81, "gravity in the MPC model [m/s^2]")
+    eps: float = setting(1e-3, "OSQP absolute and relative tolerance")
+    max_iter: int = setting(200, "OSQP iterations per solve (warm-started)")
+    max_violation: float = setting(1.0, "largest constraint violation accepted from an unfinished solve [N]")
 
     def validated(self) -> MpcConfig:
         require_integer("horizon", self.horizon, 1, 50)

@@ -24,11 +24,25 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
-from a1_common.config import ConfigError, parameter_defaults, require_integer
+from a1_common.config import (
+    ConfigError,
+    parameter_defaults,
+    parameter_descriptions,
+    recording_constraints,
+    require_integer,
+    setting,
+)
 from a1_common.kinematics import quat_to_matrix
-from a1_common.node_support import coerce_parameter, declare_parameters, diagnostic_array, run_node
+from a1_common.node_support import (
+    coerce_parameter,
+    constrain_parameters,
+    declare_parameters,
+    diagnostic_array,
+    run_node,
+)
 from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -49,6 +63,7 @@ from convex_mpc_node.controller import (
     Observation,
     controller_config_from_parameters,
     controller_parameter_defaults,
+    controller_parameter_descriptions,
 )
 from convex_mpc_node.energy import cost_of_transport, motor_power
 from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
@@ -57,29 +72,48 @@ from gait_msgs.msg import FootContacts, GaitState, MotorCommand
 from gait_msgs.msg import GaitParams as GaitParamsMsg
 
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-NODE_PARAMETERS = {"cmd_vel_stamped": False, "mass_for_cot": 12.458, "embedded_estimator": False,
-                   "estimate_after_command": False, "estimator_failover": True, "odom_every_steps": 1,
-                   "inject_qp_failures": 0}
+
+
+@dataclass(frozen=True)
+class NodeParameters:
+    """The node's own parameters (the controller's and the supervisor's are their configs')."""
+
+    cmd_vel_stamped: bool = setting(False, "read /cmd_vel as geometry_msgs/TwistStamped instead of Twist")
+    mass_for_cot: float = setting(12.458, "robot mass in the reported cost of transport [kg]")
+    embedded_estimator: bool = setting(False, "run the state estimator's core in this node and publish /odom")
+    estimate_after_command: bool = setting(
+        False, "embedded estimator: control on the previous step's estimate, update it after the command")
+    estimator_failover: bool = setting(True, "/odom stale: controlled stop on a backup estimate, then safe stance")
+    odom_every_steps: int = setting(1, "embedded estimator: publish /odom every N control steps")
+    inject_qp_failures: int = setting(0, "fault injection: the next N MPC solves fail")
+
+
+NODE_PARAMETERS = parameter_defaults(NodeParameters())
 RUNTIME_PARAMETERS = ("mode", "inject_qp_failures")
 BACKUP_HOLD = 0.02  # [s] the backup estimate outlives refused sensor samples this long
 SIM_RESET_JUMP_NS = 100_000_000  # sensor time jumping back by more than this [ns] is a simulation reset
 
 
-def _supervisor_defaults() -> dict:
-    return parameter_defaults(SupervisorConfig())
 
 
 class ConvexMpcNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("convex_mpc", **node_kwargs)
         controller_defaults = controller_parameter_defaults()
-        params = declare_parameters(self, {**controller_defaults, **_supervisor_defaults(), **NODE_PARAMETERS})
-        controller_config = controller_config_from_parameters(
-            {k: params[k] for k in controller_defaults}, source="parameters of convex_mpc")
-        supervisor_config = SupervisorConfig(**{k: params[k] for k in _supervisor_defaults()}).validated()
-        gaits = load_hand_tuned_gaits()
-        self.controller = LocomotionController(gaits["slow_trot"], controller_config)
-        self.supervisor = ControllerSupervisor(self.controller, supervisor_config)
+        supervisor_defaults = parameter_defaults(SupervisorConfig())
+        descriptions = {**controller_parameter_descriptions(), **parameter_descriptions(SupervisorConfig()),
+                        **parameter_descriptions(NodeParameters())}
+        with recording_constraints() as constraints:
+            params = declare_parameters(self, {**controller_defaults, **supervisor_defaults, **NODE_PARAMETERS},
+                                        descriptions)
+            controller_config = controller_config_from_parameters(
+                {k: params[k] for k in controller_defaults}, source="parameters of convex_mpc")
+            supervisor_config = SupervisorConfig(**{k: params[k] for k in supervisor_defaults}).validated()
+            self.odom_every = require_integer("odom_every_steps", params["odom_every_steps"], 1, 500)
+            gaits = load_hand_tuned_gaits()
+            self.controller = LocomotionController(gaits["slow_trot"], controller_config)
+            self.supervisor = ControllerSupervisor(self.controller, supervisor_config)
+            self._inject_qp_failures(params["inject_qp_failures"])
         self.mass = float(params["mass_for_cot"])
         self.period = controller_config.control_period
         self._joints: dict[int, JointState] = {}
@@ -95,13 +129,11 @@ class ConvexMpcNode(Node):
         self._missed = 0
         self._steps = 0
         self._state = "waiting"
-        self._inject_qp_failures(params["inject_qp_failures"])
         self.frontend = OdometryFrontend(load_estimator_config()) if params["embedded_estimator"] else None
         # Embedded, realtime: control on the estimate of the step before (2 ms old) and update the
         # filter after the motor command is out, so the estimator is off the sensor-to-command path.
         self.estimate_after_command = bool(params["estimate_after_command"]) and self.frontend is not None
         self._previous_velocity: np.ndarray | None = None  # world frame [m/s], that estimate
-        self.odom_every = require_integer("odom_every_steps", params["odom_every_steps"], 1, 500)
         # Failover: with /odom stale, the estimator core here, started from the last /odom velocity,
         # carries the robot through a controlled stop (supervisor "stopping") before the safe stance.
         self.backup = (OdometryFrontend(load_estimator_config())
@@ -133,6 +165,7 @@ class ConvexMpcNode(Node):
         estop_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(Bool, "/estop", self._on_estop, estop_qos)
         self.create_service(Trigger, "~/clear_estop", self._on_clear_estop)
+        constrain_parameters(self, params, constraints, runtime=RUNTIME_PARAMETERS)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_timer(1.0, self._publish_diagnostics)
 
@@ -177,14 +210,12 @@ class ConvexMpcNode(Node):
         return response
 
     def _on_set_parameters(self, params) -> SetParametersResult:
+        """Runtime changes (the others are read-only descriptors, refused by rclpy)."""
         for param in params:
-            if param.name not in RUNTIME_PARAMETERS:
-                return SetParametersResult(successful=False, reason=f"{param.name} cannot change at runtime; "
-                                                                    f"runtime parameters: {list(RUNTIME_PARAMETERS)}")
             try:
                 if param.name == "mode":
                     self.supervisor.set_mode(coerce_parameter("mode", param.value, ""))
-                else:
+                elif param.name == "inject_qp_failures":
                     self._inject_qp_failures(coerce_parameter(param.name, param.value, 0))
             except ConfigError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))

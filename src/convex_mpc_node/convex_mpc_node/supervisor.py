@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from a1_common.command import CommandError, JointCommand
-from a1_common.config import ConfigError, require_range
+from a1_common.config import ConfigError, require_choice, require_range, setting
 from a1_common.robot import NUM_JOINTS, NUM_LEGS
 
 from convex_mpc_node.controller import LocomotionController, Observation, VelocityCommand
@@ -59,23 +59,22 @@ class Mode(enum.Enum):
 
 @dataclass(frozen=True)
 class SupervisorConfig:
-    mode: str = "walk"  # the requested mode after stand-up: stand | walk | damping
-    stand_time: float = 1.0  # [s] ramp to the nominal pose
+    mode: str = setting("walk", "requested mode after stand-up: stand | walk | damping")
+    stand_time: float = setting(1.0, "stand-up ramp to the nominal pose [s]")
     # [s] without a velocity estimate -> stop / safe stance; under the bridges' 50 ms command
     # watchdog, so the controller's own reaction comes before the bridge damps the motors
-    input_timeout: float = 0.03
-    gait_timeout: float = 0.5  # [s] without /gait/params -> hand-tuned gaits by speed
-    cmd_vel_timeout: float = 2.0  # [s] without /cmd_vel -> target 0 (0 disables; ros2 topic pub sends at 1 Hz)
-    max_acceleration: float = 1.0  # [m/s^2] and [rad/s^2] toward the commanded velocity
-    stop_deceleration: float = 2.0  # [m/s^2] and [rad/s^2] of a controlled stop on a backup estimate
-    max_forward_speed: float = 3.0  # [m/s]
-    max_lateral_speed: float = 1.0  # [m/s]
-    max_yaw_rate: float = 2.0  # [rad/s]
-    fall_tilt: float = 1.0  # [rad] body tilt beyond which the robot has fallen (walking stays under 0.3)
+    input_timeout: float = setting(0.03, "no velocity estimate (/odom) for this long -> stop, safe stance [s]")
+    gait_timeout: float = setting(0.5, "no /gait/params for this long -> hand-tuned gaits by speed [s]")
+    cmd_vel_timeout: float = setting(2.0, "no /cmd_vel for this long -> target velocity 0 [s] (0: never)")
+    max_acceleration: float = setting(1.0, "acceleration toward the commanded velocity [m/s^2, rad/s^2]")
+    stop_deceleration: float = setting(2.0, "deceleration of a controlled stop on the backup estimate [m/s^2, rad/s^2]")
+    max_forward_speed: float = setting(3.0, "/cmd_vel forward speed clamp [m/s]")
+    max_lateral_speed: float = setting(1.0, "/cmd_vel lateral speed clamp [m/s]")
+    max_yaw_rate: float = setting(2.0, "/cmd_vel yaw rate clamp [rad/s]")
+    fall_tilt: float = setting(1.0, "body tilt beyond which the robot has fallen: damping until ~/clear_estop [rad]")
 
     def validated(self) -> SupervisorConfig:
-        if not isinstance(self.mode, str) or self.mode not in {m.value for m in Mode}:
-            raise ConfigError(f"mode must be one of {[m.value for m in Mode]}, got {self.mode!r}")
+        require_choice("mode", self.mode, [m.value for m in Mode])
         require_range("stand_time", self.stand_time, 0.0, 10.0)
         require_range("input_timeout", self.input_timeout, 0.0, 10.0, low_open=True)
         require_range("gait_timeout", self.gait_timeout, 0.0, 60.0, low_open=True)
@@ -130,10 +129,7 @@ class ControllerSupervisor:
 
     # --- inputs --------------------------------------------------------------------------------
     def set_mode(self, mode: str) -> None:
-        try:
-            self.requested = Mode(mode)
-        except (ValueError, TypeError):
-            raise ConfigError(f"mode must be one of {[m.value for m in Mode]}, got {mode!r}") from None
+        self.requested = Mode(require_choice("mode", mode, [m.value for m in Mode]))
 
     def estop(self) -> None:
         self.estopped = True

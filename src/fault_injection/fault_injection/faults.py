@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from a1_common.config import ConfigError, require_range
+from a1_common.config import ConfigError, require_choice, require_range, setting
 
 DELAY_MODES = ("wall", "steps")
 NEVER = 1.0e9  # [s] "no window": later than any run (times count from the first message)
@@ -39,19 +39,21 @@ NEVER = 1.0e9  # [s] "no window": later than any run (times count from the first
 
 @dataclass(frozen=True)
 class FaultConfig:
-    drop_probability: float = 0.0
-    duplicate_probability: float = 0.0
-    reorder_probability: float = 0.0  # a message held back and sent after the next one
-    start: float = 0.0  # [s] window of drop / duplicate / reorder / delay
-    end: float = NEVER  # [s]
-    delay: float = 0.0  # [s]
-    delay_mode: str = "wall"  # wall | steps (lockstep)
-    period: float = 0.002  # [s] message period, for delay_mode "steps"
-    freeze_start: float = NEVER  # [s]
-    freeze_duration: float = 0.0  # [s]
-    nan_start: float = NEVER  # [s]
-    nan_duration: float = 0.0  # [s]
-    seed: int = 0
+    drop_probability: float = setting(0.0, "probability of dropping each message in the fault window")
+    duplicate_probability: float = setting(0.0, "probability of sending each message twice in the fault window")
+    reorder_probability: float = setting(0.0, "probability of holding a message back until after the next one")
+    start: float = setting(
+        0.0, "start of the drop / duplicate / reorder / delay window, header time since the first message [s]")
+    end: float = setting(NEVER, "end of that window [s]")
+    delay: float = setting(0.0, "delay added to each message in the window [s]")
+    delay_mode: str = setting("wall", "delay clock: wall (wall time) | steps (message periods, for lockstep)")
+    period: float = setting(0.002, "message period, for delay_mode steps [s]")
+    freeze_start: float = setting(
+        NEVER, "start of the freeze: the content stays that of the window's first message, stamps advance [s]")
+    freeze_duration: float = setting(0.0, "length of the freeze [s]")
+    nan_start: float = setting(NEVER, "start of the NaN burst: every floating-point field NaN, stamps kept [s]")
+    nan_duration: float = setting(0.0, "length of the NaN window [s]")
+    seed: int = setting(0, "seed of the random faults")
 
     def validated(self) -> FaultConfig:
         for name in ("drop_probability", "duplicate_probability", "reorder_probability"):
@@ -61,8 +63,7 @@ class FaultConfig:
         if self.end < self.start:
             raise ConfigError(f"end must be >= start ({self.start}), got {self.end}")
         require_range("delay", self.delay, 0.0, 10.0)
-        if self.delay_mode not in DELAY_MODES:
-            raise ConfigError(f"delay_mode must be one of {list(DELAY_MODES)}, got {self.delay_mode!r}")
+        require_choice("delay_mode", self.delay_mode, DELAY_MODES)
         require_range("period", self.period, 0.0, 1.0, low_open=True)
         if self.delay_mode == "steps" and abs(self.delay / self.period - round(self.delay / self.period)) > 1e-6:
             raise ConfigError(f"delay must be a multiple of period ({self.period} s) with delay_mode steps, "

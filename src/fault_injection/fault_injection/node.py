@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import importlib
 import time
+from dataclasses import dataclass
 
-from a1_common.config import ConfigError, parameter_defaults
-from a1_common.node_support import declare_parameters, diagnostic_array, run_node
+from a1_common.config import ConfigError, parameter_defaults, parameter_descriptions, recording_constraints, setting
+from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
 from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -22,7 +23,16 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from fault_injection.faults import FaultConfig, FaultInjector
 
-NODE_PARAMETERS = {"topic": "", "message_type": "", "input_topic": ""}  # input default: /fault_in<topic>
+
+@dataclass(frozen=True)
+class NodeParameters:
+    """The relay's own parameters; the faults are FaultConfig's."""
+
+    topic: str = setting("", "the topic the relay publishes, an absolute name such as /imu/data")
+    message_type: str = setting("", "its message type, such as sensor_msgs/msg/Imu")
+    input_topic: str = setting("", "the topic the relay reads ('': /fault_in<topic>)")
+
+
 INPUT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)  # no loss the relay did not choose
 
 
@@ -43,12 +53,17 @@ def message_class(name: str) -> type:
 class FaultRelayNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("fault_relay", **node_kwargs)
-        params = declare_parameters(self, {**parameter_defaults(FaultConfig()), **NODE_PARAMETERS})
-        topic = params["topic"]
-        if not topic.startswith("/"):
-            raise ConfigError(f"topic must be an absolute topic name like /imu/data, got {topic!r}")
-        cls = message_class(params["message_type"])
-        self.injector = FaultInjector(FaultConfig(**{k: params[k] for k in parameter_defaults(FaultConfig())}))
+        fault_defaults = parameter_defaults(FaultConfig())
+        descriptions = {**parameter_descriptions(FaultConfig()), **parameter_descriptions(NodeParameters())}
+        with recording_constraints() as constraints:
+            params = declare_parameters(self, {**fault_defaults, **parameter_defaults(NodeParameters())},
+                                        descriptions)
+            topic = params["topic"]
+            if not topic.startswith("/"):
+                raise ConfigError(f"topic must be an absolute topic name like /imu/data, got {topic!r}")
+            cls = message_class(params["message_type"])
+            self.injector = FaultInjector(FaultConfig(**{k: params[k] for k in fault_defaults}))
+        constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.topic = topic
         self.input_topic = params["input_topic"] or "/fault_in" + topic
         self.pub = self.create_publisher(cls, topic, CONTROL_QOS)

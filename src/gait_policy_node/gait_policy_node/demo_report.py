@@ -10,11 +10,12 @@ paper's acceleration figure: contacts per leg over time with speed, frequency an
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from a1_common.config import require_range
-from a1_common.node_support import declare_parameters, run_node
+from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
+from a1_common.node_support import constrain_parameters, declare_parameters, run_node
 from a1_sim_bridge.conversions import ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
 from convex_mpc_node.energy import motor_power
@@ -35,13 +36,25 @@ from gait_policy_node.gait_analysis import (
 )
 
 
+@dataclass(frozen=True)
+class NodeParameters:
+    duration: float = setting(20.0, "report after this much sim time [s]")
+    output: str = setting("log/demo/gait_diagram.png", "where to write the gait diagram (PNG)")
+    mass: float = setting(12.458, "robot mass in the reported cost of transport [kg]")
+
+
+PARAMETERS = NodeParameters()
+
+
 class DemoReportNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("demo_report", **node_kwargs)
-        p = declare_parameters(self, {"duration": 20.0, "output": "log/demo/gait_diagram.png", "mass": 12.458})
-        self.duration = require_range("duration", p["duration"], 0.1, 3600.0)
-        self.output = Path(p["output"])
-        self.mass = require_range("mass", p["mass"], 1.0, 100.0)
+        with recording_constraints() as constraints:
+            p = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            self.duration = require_range("duration", p["duration"], 0.1, 3600.0)
+            self.output = Path(p["output"])
+            self.mass = require_range("mass", p["mass"], 1.0, 100.0)
+        constrain_parameters(self, p, constraints)  # all read-only: read at start-up
         self.rows: list[tuple] = []
         self.truth: Odometry | None = None
         self.joints: JointState | None = None

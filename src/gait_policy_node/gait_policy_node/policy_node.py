@@ -19,10 +19,19 @@ counts. Parameters are read at start-up only: runtime changes are refused.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
-from a1_common.config import ConfigError, require_range
+from a1_common.config import (
+    ConfigError,
+    parameter_defaults,
+    parameter_descriptions,
+    recording_constraints,
+    require_range,
+    setting,
+)
 from a1_common.kinematics import quat_to_matrix
-from a1_common.node_support import declare_parameters, diagnostic_array, guard_runtime_parameters, run_node
+from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
 from a1_sim_bridge.node import CONTROL_QOS
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped
@@ -36,7 +45,17 @@ from gait_policy_node.policy import make_policy
 from gait_policy_node.rollout import heading_frame
 
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-PARAMETERS = {"policy": SHIPPED_POLICY, "rate": 20.0, "cmd_vel_stamped": False}
+
+
+@dataclass(frozen=True)
+class NodeParameters:
+    policy: str = setting(SHIPPED_POLICY, "learned (the shipped trained policy) | a policy .npz from train_es | "
+                                          "scheduled | walk | slow_trot | rapid_trot | fly_trot")
+    rate: float = setting(20.0, "policy rate, /gait/params per second [Hz]")
+    cmd_vel_stamped: bool = setting(False, "read /cmd_vel as geometry_msgs/TwistStamped instead of Twist")
+
+
+PARAMETERS = NodeParameters()
 MAX_DESIRED_VELOCITY = np.array([5.0, 3.0])  # [m/s] x, y: the controller's largest speed limits
 MAX_MEASURED_VELOCITY = 10.0  # [m/s] per axis
 
@@ -44,9 +63,11 @@ MAX_MEASURED_VELOCITY = 10.0  # [m/s] per axis
 class GaitPolicyNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("gait_policy", **node_kwargs)
-        params = declare_parameters(self, PARAMETERS)
-        rate = require_range("rate", params["rate"], 1.0, 500.0)
-        self.policy = make_policy(params["policy"])
+        with recording_constraints() as constraints:
+            params = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            rate = require_range("rate", params["rate"], 1.0, 500.0)
+            self.policy = make_policy(params["policy"])
+        constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.desired = np.zeros(2)
         self.measured = np.zeros(3)
         self.policy_name = params["policy"]
@@ -63,7 +84,6 @@ class GaitPolicyNode(Node):
         self.create_subscription(Odometry, "/odom", self._on_odom, CONTROL_QOS)
         self.create_timer(1.0 / rate, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
-        guard_runtime_parameters(self, PARAMETERS)
         self.get_logger().info(f"gait policy '{params['policy']}' at {rate:g} Hz")
 
     def _on_cmd(self, twist: Twist) -> None:

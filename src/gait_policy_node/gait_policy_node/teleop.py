@@ -23,6 +23,9 @@ ARROWS = {b"\x1b[A": "up", b"\x1b[B": "down", b"\x1b[C": "right", b"\x1b[D": "le
 HELP = "w/s or up/down: forward, a/d: lateral, left/right: turn, space: stop, q: quit"
 
 
+CTRL_C = "\x03"  # with the terminal's signal keys off (teleop_node.main), Ctrl-C arrives as this byte
+
+
 class KeyDecoder:
     """Bytes from a terminal in cbreak mode -> key names; an escape sequence split across reads is
     kept until it completes, and one nothing is bound to is dropped. (A lone Esc key waits for the
@@ -36,7 +39,7 @@ class KeyDecoder:
         while buf:
             if buf[:1] != b"\x1b":
                 char = buf[:1].decode("latin-1")
-                keys.append("space" if char == " " else char.lower())
+                keys.append({" ": "space", CTRL_C: "q"}.get(char, char.lower()))
                 buf = buf[1:]
                 continue
             end = _sequence_end(buf)

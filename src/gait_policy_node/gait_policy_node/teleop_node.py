@@ -2,7 +2,8 @@
 
 Keys (teleop.py): w/s or up/down forward speed, a/d lateral speed, left/right yaw rate, in steps
 (``forward_step``, ``lateral_step`` [m/s], ``yaw_step`` [rad/s]) within the controller's limits;
-space stops; q (or Ctrl-C) quits after publishing a zero command. Publishes at ``rate`` (20 Hz) on
+space stops; q or Ctrl-C quits after publishing a zero command (SIGTERM quits without one: the
+controller's cmd_vel_timeout then stops the robot). Publishes at ``rate`` (20 Hz) on
 the wall clock whether or not a key was pressed, so the controller's /cmd_vel timeout never stops
 a robot the operator is driving, and shows the current command on one line. Needs a terminal:
 the keys are read from stdin in cbreak mode, restored on exit.
@@ -15,29 +16,43 @@ import select
 import sys
 import termios
 import tty
+from dataclasses import dataclass
 
-from a1_common.config import require_range
-from a1_common.node_support import declare_parameters, guard_runtime_parameters, run_node
+from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
+from a1_common.node_support import constrain_parameters, declare_parameters, run_node
 from geometry_msgs.msg import Twist
+from rclpy.duration import Duration
 from rclpy.node import Node
 
 from gait_policy_node.policy_node import COMMAND_QOS
 from gait_policy_node.teleop import KeyDecoder, Teleop
 
-PARAMETERS = {"rate": 20.0, "forward_step": 0.1, "lateral_step": 0.1, "yaw_step": 0.1}
+QUIT_ACK_TIMEOUT = 1.0  # [s] the zero command on quitting waits this long at most for its subscribers
+
+
+@dataclass(frozen=True)
+class NodeParameters:
+    rate: float = setting(20.0, "/cmd_vel publish rate [Hz]")
+    forward_step: float = setting(0.1, "forward speed change per key press [m/s]")
+    lateral_step: float = setting(0.1, "lateral speed change per key press [m/s]")
+    yaw_step: float = setting(0.1, "yaw rate change per key press [rad/s]")
+
+
+PARAMETERS = NodeParameters()
 
 
 class TeleopNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("teleop_keyboard", **node_kwargs)
-        p = declare_parameters(self, PARAMETERS)
-        rate = require_range("rate", p["rate"], 1.0, 100.0)
-        self.teleop = Teleop(steps=(p["forward_step"], p["lateral_step"], p["yaw_step"]))
+        with recording_constraints() as constraints:
+            p = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            rate = require_range("rate", p["rate"], 1.0, 100.0)
+            self.teleop = Teleop(steps=(p["forward_step"], p["lateral_step"], p["yaw_step"]))
+        constrain_parameters(self, p, constraints)  # all read-only: read at start-up
         self.decoder = KeyDecoder()
         self.quit = False
         self.pub = self.create_publisher(Twist, "/cmd_vel", COMMAND_QOS)
         self.create_timer(1.0 / rate, self._tick)
-        guard_runtime_parameters(self, PARAMETERS)
         self._show()
 
     def _tick(self) -> None:
@@ -78,7 +93,11 @@ class TeleopNode(Node):
             return
         self.quit = True
         self.teleop.press("q")
-        self.pub.publish(self._twist())
+        if self.context.ok():  # not after SIGTERM: rclpy's handler has shut the context down already
+            self.pub.publish(self._twist())
+            # Reliable: wait until the subscribers have it, or the context may go down with it in
+            # flight (the robot would walk on until the controller's cmd_vel_timeout).
+            self.pub.wait_for_all_acked(Duration(seconds=QUIT_ACK_TIMEOUT))
         self._show()
         sys.stdout.write("\n")
 
@@ -89,7 +108,12 @@ def main(args: list[str] | None = None) -> None:
     fd = sys.stdin.fileno()
     saved = termios.tcgetattr(fd)
     try:
-        tty.setcbreak(fd)  # keys arrive one by one, unechoed; Ctrl-C still interrupts
+        tty.setcbreak(fd)  # keys arrive one by one, unechoed
+        # Ctrl-C as a key (the quit key) rather than SIGINT: rclpy's SIGINT handler would shut the
+        # context down before the zero command could be sent.
+        attributes = termios.tcgetattr(fd)
+        attributes[3] &= ~termios.ISIG
+        termios.tcsetattr(fd, termios.TCSANOW, attributes)
         run_node("teleop_keyboard", TeleopNode, args)
     finally:
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)

@@ -13,15 +13,39 @@ parameters are read at start-up only, so runtime changes are refused.
 
 from __future__ import annotations
 
-from a1_common.config import ConfigError, require_range
-from a1_common.node_support import declare_parameters, guard_runtime_parameters, run_node
+from dataclasses import dataclass
+
+from a1_common.config import (
+    ConfigError,
+    parameter_defaults,
+    parameter_descriptions,
+    recording_constraints,
+    require_choice,
+    require_range,
+    setting,
+)
+from a1_common.node_support import constrain_parameters, declare_parameters, run_node
 from geometry_msgs.msg import Twist
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 PROFILES = ("constant", "ramp", "steps")
-PARAMETERS = {"profile": "ramp", "speed": 2.5, "lateral": 0.0, "yaw_rate": 0.0, "acceleration": 1.0,
-              "steps": "0:0.0", "rate": 20.0, "duration": 0.0, "start_delay": 0.0}
+
+
+@dataclass(frozen=True)
+class NodeParameters:
+    profile: str = setting("ramp", "constant: speed at once | ramp: to speed at acceleration | steps: the steps table")
+    speed: float = setting(2.5, "forward speed of the constant and ramp profiles [m/s]")
+    lateral: float = setting(0.0, "lateral speed [m/s]")
+    yaw_rate: float = setting(0.0, "yaw rate [rad/s]")
+    acceleration: float = setting(1.0, "ramp and steps: acceleration toward the next speed [m/s^2]")
+    steps: str = setting("0:0.0", "steps profile: 'time:speed,...' [s:m/s], times increasing")
+    rate: float = setting(20.0, "/cmd_vel publish rate [Hz]")
+    duration: float = setting(0.0, "stop publishing after this long [s] (0: never)")
+    start_delay: float = setting(0.0, "profile time starts this long after the first tick [s]")
+
+
+PARAMETERS = NodeParameters()
 MAX_SPEED = 3.0  # [m/s] forward speed of any profile (the controller's default limit)
 MAX_STEP_TIME = 1e6  # [s]
 
@@ -47,23 +71,22 @@ def parse_steps(text: str) -> list[tuple[float, float]]:
 class VelocityCommandNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("velocity_command", **node_kwargs)
-        p = declare_parameters(self, PARAMETERS)
-        if p["profile"] not in PROFILES:
-            raise ConfigError(f"profile must be one of {list(PROFILES)}, got {p['profile']!r}")
-        self.profile = p["profile"]
-        self.speed = require_range("speed", p["speed"], -MAX_SPEED, MAX_SPEED)
-        self.lateral = require_range("lateral", p["lateral"], -1.0, 1.0)
-        self.yaw_rate = require_range("yaw_rate", p["yaw_rate"], -2.0, 2.0)
-        self.acceleration = require_range("acceleration", p["acceleration"], 0.0, 20.0, low_open=True)
-        self.steps = parse_steps(p["steps"])
-        self.duration = require_range("duration", p["duration"], 0.0, 1e6)
-        self.start_delay = require_range("start_delay", p["start_delay"], 0.0, 3600.0)
-        rate = require_range("rate", p["rate"], 1.0, 1000.0)
+        with recording_constraints() as constraints:
+            p = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            self.profile = require_choice("profile", p["profile"], PROFILES)
+            self.speed = require_range("speed", p["speed"], -MAX_SPEED, MAX_SPEED)
+            self.lateral = require_range("lateral", p["lateral"], -1.0, 1.0)
+            self.yaw_rate = require_range("yaw_rate", p["yaw_rate"], -2.0, 2.0)
+            self.acceleration = require_range("acceleration", p["acceleration"], 0.0, 20.0, low_open=True)
+            self.steps = parse_steps(p["steps"])
+            self.duration = require_range("duration", p["duration"], 0.0, 1e6)
+            self.start_delay = require_range("start_delay", p["start_delay"], 0.0, 3600.0)
+            rate = require_range("rate", p["rate"], 1.0, 1000.0)
+        constrain_parameters(self, p, constraints)  # all read-only: read at start-up
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(Twist, "/cmd_vel", reliable)
         self._start = None
         self.create_timer(1.0 / rate, self._tick)
-        guard_runtime_parameters(self, PARAMETERS)
 
     def command_at(self, t: float) -> Twist:
         msg = Twist()

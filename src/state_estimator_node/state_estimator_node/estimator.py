@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from a1_common.config import ConfigError, config_dir, load_node_parameters, require_range
+from a1_common.config import ConfigError, config_dir, load_node_parameters, require_range, setting
 from a1_common.kinematics import leg_kinematics, quat_to_matrix
 from a1_common.robot import NUM_JOINTS, NUM_LEGS, A1Constants, a1
 from filterpy.kalman import KalmanFilter
@@ -39,18 +39,20 @@ _SAMPLE_LIMITS = np.concatenate([np.full(NUM_JOINTS, MAX_JOINT_ANGLE), np.full(N
 @dataclass(frozen=True)
 class EstimatorConfig:
     # Per-axis process noise density: variance added per second of prediction [(m/s)^2 / s].
-    process_noise: tuple[float, float, float] = (7.1e-3, 7.9e-3, 4.4e-2)
+    process_noise: tuple[float, float, float] = setting(
+        (7.1e-3, 7.9e-3, 4.4e-2), "process noise density per axis x, y, z [(m/s)^2 per s]")
     # Per-axis leg-odometry measurement noise [(m/s)^2] (reference values).
-    measurement_noise: tuple[float, float, float] = (0.010112, 0.004458, 0.020532)
-    initial_covariance: float = 0.1  # [(m/s)^2]
-    touchdown_window: float = 0.02  # [s] after touchdown a foot is trusted less
-    low_force: float = 10.0  # [N] below this a contact foot is trusted less
-    soft_contact_scale: float = 10.0  # measurement noise multiplier for such feet
-    max_gap: float = 0.02  # [s] longer gaps are not integrated
-    stale_timeout: float = 0.05  # [s] without a valid sample -> estimate flagged stale
-    max_covariance: float = 1.0  # [(m/s)^2] trace above this -> flagged diverging
-    max_speed: float = 10.0  # [m/s] estimate above this -> flagged diverging
-    gravity: float = 9.81  # [m/s^2]
+    measurement_noise: tuple[float, float, float] = setting(
+        (0.010112, 0.004458, 0.020532), "leg-odometry measurement noise per axis x, y, z [(m/s)^2]")
+    initial_covariance: float = setting(0.1, "initial velocity covariance per axis [(m/s)^2]")
+    touchdown_window: float = setting(0.02, "feet that touched down less than this ago are trusted less [s]")
+    low_force: float = setting(10.0, "feet carrying less than this are trusted less [N]")
+    soft_contact_scale: float = setting(10.0, "measurement-noise multiplier for the feet trusted less")
+    max_gap: float = setting(0.02, "longer gaps between samples are not integrated [s]")
+    stale_timeout: float = setting(0.05, "no valid sample for this long -> estimate flagged stale [s]")
+    max_covariance: float = setting(1.0, "covariance trace above this -> estimate flagged diverging [(m/s)^2]")
+    max_speed: float = setting(10.0, "estimated speed above this -> flagged diverging [m/s]")
+    gravity: float = setting(9.81, "gravity removed from the accelerometer reading [m/s^2]")
 
     def validated(self) -> EstimatorConfig:
         for name in ("process_noise", "measurement_noise"):

@@ -12,8 +12,8 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from a1_common.config import parameter_defaults
-from a1_common.node_support import declare_parameters, diagnostic_array, guard_runtime_parameters, run_node
+from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints
+from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
 from a1_sim_bridge.conversions import BASE_FRAME, ODOM_FRAME, ns_from_stamp
 from a1_sim_bridge.node import CONTROL_QOS
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -134,10 +134,11 @@ def estimator_config_from_parameters(params: dict) -> EstimatorConfig:
 class StateEstimatorNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("state_estimator", **node_kwargs)
-        defaults = parameter_defaults(EstimatorConfig())
-        params = declare_parameters(self, defaults)
-        guard_runtime_parameters(self, defaults)  # all read at start-up: refuse changes, never ignore them
-        self.frontend = OdometryFrontend(estimator_config_from_parameters(params))
+        with recording_constraints() as constraints:
+            params = declare_parameters(self, parameter_defaults(EstimatorConfig()),
+                                        parameter_descriptions(EstimatorConfig()))
+            self.frontend = OdometryFrontend(estimator_config_from_parameters(params))
+        constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.estimator = self.frontend.estimator
         self._imu: Imu | None = None
         self._contacts: FootContacts | None = None
