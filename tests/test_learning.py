@@ -17,7 +17,7 @@ from gait_policy_node.gait_analysis import classify_gait, transition_speeds
 from gait_policy_node.learned_policy import NetworkPolicy, decode_action, load_policy, save_policy
 from gait_policy_node.policy import make_policy
 from gait_policy_node.rollout_workers import run_episode
-from gait_policy_node.sweep_gaits import compare_with_hand_tuned
+from gait_policy_node.sweep_gaits import compare_with_hand_tuned, sweep
 from gait_policy_node.train_config import (
     ActionConfig,
     EnvConfig,
@@ -310,3 +310,13 @@ def test_extended_observation_has_imu_joints_and_phases():
         np.testing.assert_allclose(np.hypot(obs[21:25], obs[25:29]), 1.0)  # sin, cos of each leg's phase
     finally:
         env.close()
+
+
+def test_sweep_runs_each_gait_at_each_swing_ratio_of_the_grid_and_refuses_one_out_of_range():
+    config = load_train_config()
+    rows = sweep(config, ["walk"], [0.5], [2.0], [], hold=3.0, workers=1, swing_ratios=[0.25, 0.4])
+    assert sorted(r["swing_ratio"] for r in rows) == [0.25, 0.4]
+    assert all(r["name"] == "walk" and r["frequency"] == 2.0 and not r["fell"] for r in rows)
+    assert rows[0]["power"] != rows[1]["power"]  # the swing ratio reached the controller
+    with pytest.raises(ConfigError, match=r"--swing-ratios: .*swing_ratio"):
+        sweep(config, ["walk"], [0.5], [2.0], [], hold=3.0, workers=1, swing_ratios=[1.5])

@@ -1,15 +1,18 @@
 """sweep_gaits: the paper's hand-tuned baselines (section 5.2) and cost of transport against speed.
 
     sweep_gaits [--gaits walk slow_trot rapid_trot fly_trot] [--speeds 0.3 0.5 1.0 1.5 2.0 2.5]
-                [--frequencies 1.0 1.5 2.0 2.5 3.0 3.5 4.0] [--policy a.npz ...] [--hold 4.0]
-                [--workers N] [--out DIR]
+                [--frequencies 1.0 1.5 2.0 2.5 3.0 3.5 4.0] [--swing-ratios 0.3 0.4 ...]
+                [--policy a.npz ...] [--hold 4.0] [--workers N] [--out DIR]
 
 For each hand-tuned gait (its phase offsets and swing ratio from config/gaits.yaml), at each speed,
 every stepping frequency of the grid runs a constant-speed episode (ramp at 1 m/s^2, then
 ``--hold`` seconds); the frequency with the highest reward (config/train_es.yaml's reward, on the
-mean speed and power of the last 3 s) is kept. Learned policies run the same episodes. Writes
-sweep.csv (every run), best.csv (the table), cost_of_transport.png (CoT against speed, one curve per
-gait and policy) into ``--out`` (default log/sweep/<time>/). CoT = P / (m g v) with the reward's m.
+mean speed and power of the last 3 s) is kept. With ``--swing-ratios`` every gait also runs at each
+of those swing ratios instead of its own (the frequency and swing ratio with the highest reward
+are kept): which footfall pattern is cheapest once its timing is tuned too. Learned policies run
+the same episodes. Writes sweep.csv (every run), best.csv (the table), cost_of_transport.png (CoT
+against speed, one curve per gait and policy) into ``--out`` (default log/sweep/<time>/).
+CoT = P / (m g v) with the reward's m.
 """
 
 from __future__ import annotations
@@ -72,13 +75,15 @@ def _run_task(task: tuple) -> dict:
         gait = GaitParams(*spec)
         policy = lambda obs: gait  # noqa: E731
     result = run_constant_speed(_ENV, policy, speed, hold)
-    return {"name": label, "target_speed": speed,
-            "frequency": spec[0] if not isinstance(spec, str) else float("nan"), **result}
+    learned = isinstance(spec, str)
+    return {"name": label, "target_speed": speed, "frequency": float("nan") if learned else spec[0],
+            "swing_ratio": float("nan") if learned else spec[1], **result}
 
 
 def sweep(config: TrainConfig, gaits: list[str], speeds: list[float], frequencies: list[float],
-          policies: list[str], hold: float, workers: int) -> list[dict]:
-    """Every (gait, speed, frequency) and (policy, speed) run, in parallel on ``workers`` processes."""
+          policies: list[str], hold: float, workers: int, swing_ratios: list[float] | None = None) -> list[dict]:
+    """Every (gait, speed, frequency[, swing ratio]) and (policy, speed) run, in parallel on
+    ``workers`` processes; ``swing_ratios`` None: each gait's own."""
     table = load_hand_tuned_gaits()
     unknown = [g for g in gaits if g not in table]
     if unknown:
@@ -91,8 +96,13 @@ def sweep(config: TrainConfig, gaits: list[str], speeds: list[float], frequencie
             raise ConfigError(f"--speeds must be in (0, 3.5] m/s, got {s}")
     for p in policies:
         load_policy(p)  # fail early on a bad file
-    tasks = [(g, (f, table[g].swing_ratio, table[g].phase_offsets), s, hold)
-             for g in gaits for s in speeds for f in frequencies]
+    tasks = [(g, (f, r, table[g].phase_offsets), s, hold)
+             for g in gaits for s in speeds for f in frequencies for r in (swing_ratios or [table[g].swing_ratio])]
+    for _, (f, r, offsets), _, _ in tasks:
+        try:
+            GaitParams(f, r, offsets).validated()
+        except ValueError as exc:
+            raise ConfigError(f"--swing-ratios: {exc}") from None
     tasks += [(Path(p).stem, p, s, hold) for p in policies for s in speeds]
     ctx = multiprocessing.get_context("spawn")
     with ctx.Pool(workers, initializer=_init_worker, initargs=(config.to_dict(),)) as pool:
@@ -100,7 +110,8 @@ def sweep(config: TrainConfig, gaits: list[str], speeds: list[float], frequencie
         for i, r in enumerate(pool.imap(_run_task, tasks, chunksize=1), 1):
             results.append(r)
             outcome = "fell" if r["fell"] else f"CoT {r['cost_of_transport']:.2f}"
-            print(f"\r[{i}/{len(tasks)}] {r['name']} {r['target_speed']:.1f} m/s f={r['frequency']:.1f}: "
+            print(f"\r[{i}/{len(tasks)}] {r['name']} {r['target_speed']:.1f} m/s f={r['frequency']:.1f} "
+                  f"p_swing={r['swing_ratio']:.2f}: "
                   f"{outcome}      ", end="", flush=True)
         print()
     return results
@@ -162,12 +173,12 @@ def plot_cost_of_transport(rows: list[dict], path: Path) -> None:
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:
-    keys = ["name", "target_speed", "frequency", "speed", "speed_error", "power", "cost_of_transport", "reward",
-            "fell"]
+    keys = ["name", "target_speed", "frequency", "swing_ratio", "speed", "speed_error", "power", "cost_of_transport",
+            "reward", "fell"]
     with path.open("w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(keys)
-        for r in sorted(rows, key=lambda r: (r["name"], r["target_speed"], r["frequency"])):
+        for r in sorted(rows, key=lambda r: (r["name"], r["target_speed"], r["frequency"], r["swing_ratio"])):
             writer.writerow([f"{r[k]:.4g}" if isinstance(r[k], float) else r[k] for k in keys])
 
 
@@ -177,6 +188,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--gaits", nargs="+", default=["walk", "slow_trot", "rapid_trot", "fly_trot"])
     parser.add_argument("--speeds", nargs="+", type=float, default=[0.3, 0.5, 1.0, 1.5, 2.0, 2.5])
     parser.add_argument("--frequencies", nargs="+", type=float, default=[1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0])
+    parser.add_argument("--swing-ratios", nargs="+", type=float,
+                        help="run every gait at each of these swing ratios (default: each gait's own)")
     parser.add_argument("--policy", action="append", default=[],
                         help="learned policy .npz, or 'learned' for the shipped one (repeatable)")
     parser.add_argument("--hold", type=float, default=4.0, help="seconds at the target speed (>= 3)")
@@ -196,7 +209,8 @@ def main(argv: list[str] | None = None) -> int:
         config = load_train_config(args.config)
         config = dataclasses.replace(config, env=dataclasses.replace(config.env, observation="basic"))
         start = time.monotonic()
-        results = sweep(config, args.gaits, args.speeds, args.frequencies, args.policy, args.hold, args.workers)
+        results = sweep(config, args.gaits, args.speeds, args.frequencies, args.policy, args.hold, args.workers,
+                        args.swing_ratios)
     except ConfigError as exc:
         print(f"sweep_gaits: {exc}", file=sys.stderr)
         return 2
@@ -209,15 +223,17 @@ def main(argv: list[str] | None = None) -> int:
     names = list(dict.fromkeys(r["name"] for r in best))
     speeds = sorted({r["target_speed"] for r in best})
     cell = {(r["name"], r["target_speed"]): r for r in best}
-    print(f"cost of transport (best frequency [Hz] in brackets); {time.monotonic() - start:.0f} s")
-    print(f"{'':<12}" + "".join(f"{s:>14.1f}" for s in speeds))
+    timing = "best frequency [Hz] / swing ratio" if args.swing_ratios else "best frequency [Hz]"
+    print(f"cost of transport ({timing} in brackets); {time.monotonic() - start:.0f} s")
+    print(f"{'':<12}" + "".join(f"{s:>{20 if args.swing_ratios else 14}.1f}" for s in speeds))
     for n in names:
         line = f"{n:<12}"
         for s in speeds:
             r = cell.get((n, s))
             text = "fell" if r is None or r["fell"] else f"{r['cost_of_transport']:.2f}" + (
-                f" [{r['frequency']:.1f}]" if not np.isnan(r["frequency"]) else "")
-            line += f"{text:>14}"
+                f" [{r['frequency']:.1f}" + (f"/{r['swing_ratio']:.2f}" if args.swing_ratios else "") + "]"
+                if not np.isnan(r["frequency"]) else "")
+            line += f"{text:>{20 if args.swing_ratios else 14}}"
         print(line)
     policies = [Path(p).stem for p in args.policy]
     for r in compare_with_hand_tuned(best, args.gaits, policies):
