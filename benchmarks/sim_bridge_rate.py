@@ -47,8 +47,8 @@ def executable(pkg: str, exe: str) -> str:
 def node_rate(clock_mode: str, seconds: float) -> tuple[float, float]:
     """Start sim_bridge (+ joint_hold) as processes; return (joint_states rate [Hz], sim/wall ratio)."""
     import rclpy
-    from a1_sim_bridge.conversions import ns_from_stamp
-    from a1_sim_bridge.node import CONTROL_QOS
+    from a1_interface.contract import CONTROL_QOS
+    from a1_interface.conversions import ns_from_stamp
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
 

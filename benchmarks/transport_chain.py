@@ -1,6 +1,6 @@
 """Benchmark the 2 ms chain's floor: the bridge's three sensor messages out, one command back.
 
-Two processes talk over the real topics, QoS, codecs (a1_sim_bridge.wire) and executor
+Two processes talk over the real topics, QoS, codecs (a1_interface.wire) and executor
 (DirectExecutor) of the graph, with stand-ins for the work: the "bridge" spins ``--bridge-work``
 of CPU per step (physics) and publishes the sensors at 500 Hz, the "controller" spins
 ``--controller-work`` per step and answers /joint_states with a /motor_command. Optionally a third
@@ -53,12 +53,12 @@ def run_node(role: str, seconds: float, work: float) -> None:
     import rclpy
     from a1_common.command import JointCommand
     from a1_common.node_support import DirectExecutor
-    from a1_sim_bridge.node import CONTROL_QOS
-    from a1_sim_bridge.sim import SensorReadings
+    from a1_interface.contract import CONTROL_QOS
+    from a1_interface.sensors import SensorReadings
     from rclpy.node import Node
     from sensor_msgs.msg import Imu, JointState
 
-    from a1_sim_bridge import wire
+    from a1_interface import wire
     from gait_msgs.msg import FootContacts, MotorCommand
 
     rclpy.init(args=[])

@@ -11,8 +11,8 @@ from nav_msgs.msg import Odometry
 from state_estimator_node.estimator import EstimatorConfig
 from state_estimator_node.node import OdometryFrontend
 
-from a1_sim_bridge import conversions as cv
-from a1_sim_bridge import wire
+from a1_interface import conversions as cv
+from a1_interface import wire
 
 STEP_NS = 2_000_000
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 from a1_common.config import ConfigError
-from a1_sim_bridge.conversions import ns_from_stamp, stamp_from_ns
+from a1_interface.conversions import ns_from_stamp, stamp_from_ns
 from fault_injection.faults import FaultConfig, FaultInjector, poison
 from fault_injection.node import message_class
 from sensor_msgs.msg import Imu, JointState

@@ -21,7 +21,7 @@ import os
 
 import numpy as np
 import pytest
-from a1_sim_bridge.conversions import ns_from_stamp
+from a1_interface.conversions import ns_from_stamp
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
 from graph_helpers import PROBE_QOS, Graph, damping_onset, run_until, set_sim_paused

@@ -15,7 +15,7 @@ import pytest
 from a1_common.command import MAX_FEEDFORWARD_TORQUE, MAX_KD, MAX_KP, CommandWatchdog, JointCommand, MotorMode
 from a1_common.config import ConfigError
 from a1_common.robot import a1
-from a1_sim_bridge.conversions import motor_command_msg, stamp_from_ns
+from a1_interface.conversions import motor_command_msg, stamp_from_ns
 from convex_mpc_node.controller import LocomotionController, Observation
 from convex_mpc_node.gait import TWO_PI, GaitParams, load_hand_tuned_gaits
 from convex_mpc_node.supervisor import ControllerSupervisor, SupervisorConfig
@@ -23,7 +23,7 @@ from hypothesis import example, given
 from hypothesis import strategies as st
 from rclpy.serialization import serialize_message
 
-from a1_sim_bridge import wire
+from a1_interface import wire
 from gait_msgs.msg import MotorCommand
 
 

@@ -18,8 +18,9 @@ import pytest
 import rclpy
 from a1_common.command import JointCommand, MotorMode
 from a1_common.robot import a1
-from a1_sim_bridge.conversions import ns_from_stamp, stamp_from_ns
-from a1_sim_bridge.node import CONTROL_QOS, SimBridgeNode
+from a1_interface.contract import COMMAND_QOS, CONTROL_QOS
+from a1_interface.conversions import ns_from_stamp, stamp_from_ns
+from a1_sim_bridge.node import SimBridgeNode
 from convex_mpc_node.gait import GaitParams
 from convex_mpc_node.node import ConvexMpcNode
 from diagnostic_msgs.msg import DiagnosticArray
@@ -34,14 +35,13 @@ from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from ros_helpers import spin_until
 from sensor_msgs.msg import Imu, JointState
 from state_estimator_node.node import StateEstimatorNode
 from std_srvs.srv import SetBool
 
-from a1_sim_bridge import wire
+from a1_interface import wire
 from gait_msgs.msg import FootContacts, MotorCommand
 from gait_msgs.msg import GaitParams as GaitParamsMsg
 
@@ -57,7 +57,6 @@ dds_examples = settings(max_examples=max(10, settings.default.max_examples // 3)
 
 ROBOT = a1()
 STEP_NS = 2_000_000
-COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 hostile_float = st.one_of(st.floats(width=64), st.sampled_from([math.nan, math.inf, -math.inf, 1e308, -1e308]))
 
 

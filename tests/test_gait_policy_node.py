@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 from a1_common.config import ConfigError
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_interface.contract import COMMAND_QOS, CONTROL_QOS
 from gait_policy_node.demo_report import DemoReportNode
 from gait_policy_node.learned_policy import NetworkPolicy, save_policy
-from gait_policy_node.policy_node import COMMAND_QOS, GaitPolicyNode
+from gait_policy_node.policy_node import GaitPolicyNode
 from gait_policy_node.train_config import TrainConfig
 from geometry_msgs.msg import Twist, Vector3
 from nav_msgs.msg import Odometry

@@ -13,8 +13,8 @@ import time
 
 import numpy as np
 import pytest
-from a1_sim_bridge.conversions import ns_from_stamp
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_interface.contract import CONTROL_QOS, TF_QOS
+from a1_interface.conversions import ns_from_stamp
 from bag_recorder.bag import read_bag
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
@@ -25,7 +25,6 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import spin_until
 from sensor_msgs.msg import JointState
-from state_estimator_node.node import TF_QOS
 from std_srvs.srv import Trigger
 
 from gait_msgs.msg import MotorCommand

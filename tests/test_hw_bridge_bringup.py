@@ -8,8 +8,8 @@ import subprocess
 import time
 
 import pytest
-from a1_sim_bridge.conversions import ns_from_stamp
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_interface.contract import CONTROL_QOS
+from a1_interface.conversions import ns_from_stamp
 from graph_helpers import ROOT
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node

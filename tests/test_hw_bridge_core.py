@@ -24,7 +24,8 @@ from a1_hw_bridge.robot_io import (
     rpy_from_quaternion,
 )
 from a1_hw_bridge.virtual_a1 import VirtualA1, VirtualA1Config, VirtualA1Server
-from a1_sim_bridge.sim import SensorReadings, SimConfig
+from a1_interface.sensors import SensorReadings
+from a1_sim_bridge.sim import SimConfig
 
 from a1_hw_bridge import protocol as wire
 

@@ -27,8 +27,8 @@ from a1_common.robot import a1
 from a1_hw_bridge.node import HardwareBridgeNode
 from a1_hw_bridge.protocol import IDLE_MODE, SERVO_MODE, LowCmd, LowState, pack_low_state, unpack_low_cmd
 from a1_hw_bridge.virtual_a1_node import VirtualA1Node
-from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
-from a1_sim_bridge.node import CONTROL_QOS, DESCRIPTION_QOS
+from a1_interface.contract import CONTROL_QOS, LATCHED_QOS
+from a1_interface.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
 from diagnostic_msgs.msg import DiagnosticArray
 from graph_helpers import CONFIG, Graph
 from rclpy.executors import SingleThreadedExecutor
@@ -140,7 +140,7 @@ class FakeController(Node):
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self.descriptions: list[str] = []
         self.create_subscription(String, "/robot_description", lambda m: self.descriptions.append(m.data),
-                                 DESCRIPTION_QOS)
+                                 LATCHED_QOS)
 
     def command(self) -> JointCommand:
         position = ROBOT.nominal_joint_angles.copy()

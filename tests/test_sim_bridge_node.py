@@ -9,9 +9,10 @@ import pytest
 from a1_common.command import JointCommand
 from a1_common.config import ConfigError
 from a1_common.files import TEMPORARY_MARK
-from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
+from a1_interface.contract import CONTROL_QOS
+from a1_interface.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
 from a1_sim_bridge.joint_hold_node import JointHoldNode
-from a1_sim_bridge.node import CONTROL_QOS, SimBridgeNode
+from a1_sim_bridge.node import SimBridgeNode
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node

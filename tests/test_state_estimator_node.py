@@ -6,9 +6,10 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
-from a1_sim_bridge.conversions import ns_from_stamp
+from a1_interface.contract import CONTROL_QOS, LATCHED_QOS, TF_QOS
+from a1_interface.conversions import ns_from_stamp
 from a1_sim_bridge.joint_hold_node import JointHoldNode
-from a1_sim_bridge.node import CONTROL_QOS, DESCRIPTION_QOS, SimBridgeNode
+from a1_sim_bridge.node import SimBridgeNode
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -16,7 +17,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from ros_helpers import spin_until
 from sensor_msgs.msg import JointState
-from state_estimator_node.node import TF_QOS, StateEstimatorNode
+from state_estimator_node.node import StateEstimatorNode
 from std_msgs.msg import String
 
 from tf2_msgs.msg import TFMessage
@@ -31,7 +32,7 @@ def test_odometry_from_the_sim_bridge(rclpy_context):
     odoms, joints, tfs, descriptions = [], [], [], []
     listener.create_subscription(Odometry, "/odom", odoms.append, QoSProfile(depth=1000))
     listener.create_subscription(TFMessage, "/tf", tfs.append, TF_QOS)
-    listener.create_subscription(String, "/robot_description", descriptions.append, DESCRIPTION_QOS)
+    listener.create_subscription(String, "/robot_description", descriptions.append, LATCHED_QOS)
     listener.create_subscription(JointState, "/joint_states", joints.append, CONTROL_QOS)
     executor = SingleThreadedExecutor(context=rclpy_context)
     for n in (bridge, hold, estimator, listener):

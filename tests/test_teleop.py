@@ -10,7 +10,7 @@ import signal
 
 import pytest
 from a1_common.config import ConfigError
-from gait_policy_node.policy_node import COMMAND_QOS
+from a1_interface.contract import COMMAND_QOS
 from gait_policy_node.teleop import KeyDecoder, Teleop
 from geometry_msgs.msg import Twist
 from graph_helpers import executable

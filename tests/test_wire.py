@@ -1,16 +1,17 @@
-"""The byte-level codecs of the 500 Hz messages (a1_sim_bridge.wire) against rclpy's serializer."""
+"""The byte-level codecs of the 500 Hz messages (a1_interface.wire) against rclpy's serializer."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from a1_common.command import JointCommand, MotorMode
-from a1_sim_bridge.sim import SensorReadings
+from a1_interface.contract import BASE_FRAME, IMU_FRAME
+from a1_interface.sensors import SensorReadings
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Imu, JointState
 
-from a1_sim_bridge import conversions as cv
-from a1_sim_bridge import wire
+from a1_interface import conversions as cv
+from a1_interface import wire
 from gait_msgs.msg import FootContacts, MotorCommand
 
 NAMES = [f"{leg}_{joint}_joint" for leg in ("FR", "FL", "RR", "RL") for joint in ("hip", "thigh", "calf")]
@@ -30,13 +31,13 @@ def readings() -> SensorReadings:
 def test_encoders_give_what_the_ordinary_messages_give(readings: SensorReadings) -> None:
     stamp = cv.stamp_from_ns(STAMP_NS)
     for _ in range(2):  # the second encode reuses the template
-        joints = deserialize_message(wire.JointStateEncoder(NAMES, cv.BASE_FRAME).encode(
+        joints = deserialize_message(wire.JointStateEncoder(NAMES, BASE_FRAME).encode(
             STAMP_NS, readings.joint_position, readings.joint_velocity, readings.joint_torque), JointState)
         assert joints == cv.joint_state_msg(readings, stamp, NAMES)
-        imu = deserialize_message(wire.ImuEncoder(cv.IMU_FRAME).encode(
+        imu = deserialize_message(wire.ImuEncoder(IMU_FRAME).encode(
             STAMP_NS, readings.imu_orientation, readings.imu_angular_velocity, readings.imu_linear_acceleration), Imu)
         assert imu == cv.imu_msg(readings, stamp)
-        contacts = deserialize_message(wire.FootContactsEncoder(cv.BASE_FRAME).encode(
+        contacts = deserialize_message(wire.FootContactsEncoder(BASE_FRAME).encode(
             STAMP_NS, readings.foot_contact, readings.foot_force), FootContacts)
         assert contacts == cv.foot_contacts_msg(readings, stamp)
 

@@ -96,3 +96,12 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
     ])
+
+
+def heading_frame(orientation: np.ndarray) -> np.ndarray:
+    """Rotation yaw-aligned frame -> world for a base orientation quaternion (x, y, z, w): the frame
+    the gait policy sees velocities in (x forward along the heading, z up)."""
+    rot = quat_to_matrix(orientation)
+    yaw = np.arctan2(rot[1, 0], rot[0, 0])
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

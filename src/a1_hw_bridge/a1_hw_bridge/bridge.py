@@ -43,7 +43,7 @@ import numpy as np
 from a1_common.command import CommandWatchdog, JointCommand
 from a1_common.config import ConfigError, require_choice, require_integer, require_range, setting
 from a1_common.robot import A1Constants, a1
-from a1_sim_bridge.sim import SensorReadings
+from a1_interface.sensors import SensorReadings
 
 from a1_hw_bridge.contacts import FootContactCalibrator
 from a1_hw_bridge.link import Pacer, RobotLink

@@ -1,7 +1,7 @@
-"""hw_bridge node: the Unitree A1 (or the virtual A1) behind the sim bridge's topics.
+"""hw_bridge node: the Unitree A1 (or the virtual A1) behind the sim bridge's contract.
 
 Publishes /joint_states, /imu/data, /foot_contacts (same messages, frames and QoS as the sim
-bridge, encoded by a1_sim_bridge.wire) and /diagnostics; subscribes /motor_command, and
+bridge, encoded by a1_interface.wire) and /diagnostics; subscribes /motor_command, and
 /gait/state for the contact recalibration. In lockstep mode (virtual A1 only) it also publishes
 /clock from the robot's tick. Everything else is in a1_hw_bridge.bridge (no rclpy).
 """
@@ -12,9 +12,9 @@ import numpy as np
 from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints
 from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
 from a1_common.robot import a1
+from a1_interface.contract import BASE_FRAME, CONTROL_QOS, IMU_FRAME, LATCHED_QOS
+from a1_interface.sensors import SensorReadings
 from a1_sim_bridge.description import robot_description
-from a1_sim_bridge.node import CONTROL_QOS, DESCRIPTION_QOS
-from a1_sim_bridge.sim import SensorReadings
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -22,8 +22,8 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import String
 
 from a1_hw_bridge.bridge import BridgeConfig, HardwareBridge, Phase
-from a1_sim_bridge import conversions as cv
-from a1_sim_bridge import wire
+from a1_interface import contract, wire
+from a1_interface import conversions as cv
 from gait_msgs.msg import FootContacts, GaitState, MotorCommand
 
 NO_STATE_ERROR_AGE = 0.5  # [s] without a valid state from the robot -> diagnostics ERROR
@@ -39,21 +39,21 @@ class HardwareBridgeNode(Node):
             config = BridgeConfig(**params).validated()
         constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.joint_names = list(a1().joint_names)
-        self.encoders = wire.SensorEncoders(self.joint_names, cv.BASE_FRAME, cv.IMU_FRAME)
-        self.pub_joints = self.create_publisher(JointState, "/joint_states", CONTROL_QOS)
-        self.pub_imu = self.create_publisher(Imu, "/imu/data", CONTROL_QOS)
-        self.pub_contacts = self.create_publisher(FootContacts, "/foot_contacts", CONTROL_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.pub_description = self.create_publisher(String, "/robot_description", DESCRIPTION_QOS)
+        self.encoders = wire.SensorEncoders(self.joint_names, BASE_FRAME, IMU_FRAME)
+        self.pub_joints = self.create_publisher(JointState, contract.JOINT_STATES, CONTROL_QOS)
+        self.pub_imu = self.create_publisher(Imu, contract.IMU, CONTROL_QOS)
+        self.pub_contacts = self.create_publisher(FootContacts, contract.FOOT_CONTACTS, CONTROL_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
+        self.pub_description = self.create_publisher(String, contract.ROBOT_DESCRIPTION, LATCHED_QOS)
         self.pub_description.publish(String(data=robot_description()))  # as the sim bridge: RViz sees the robot
-        self.pub_clock = (self.create_publisher(Clock, "/clock", CONTROL_QOS)
+        self.pub_clock = (self.create_publisher(Clock, contract.CLOCK, CONTROL_QOS)
                           if config.clock_mode == "lockstep" else None)
         self.bridge = HardwareBridge(
             config, publish=self._publish, clock_ns=lambda: self.get_clock().now().nanoseconds,
             publish_clock=self._publish_clock if self.pub_clock is not None else None, on_failure=self._on_failure)
-        self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS, raw=True)
+        self.create_subscription(MotorCommand, contract.MOTOR_COMMAND, self._on_command, CONTROL_QOS, raw=True)
         if config.swing_recalibration:
-            self.create_subscription(GaitState, "/gait/state", self._on_gait_state, CONTROL_QOS)
+            self.create_subscription(GaitState, contract.GAIT_STATE, self._on_gait_state, CONTROL_QOS)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
             f"A1 link {self.bridge.link.local_address[0]}:{self.bridge.link.local_address[1]} -> "
@@ -74,7 +74,7 @@ class HardwareBridgeNode(Node):
         self.context.try_shutdown()  # ends spin() in main(), which exits non-zero
 
     def _on_command(self, raw: bytes) -> None:
-        """A /motor_command as its CDR bytes (a1_sim_bridge.wire: this runs 500 times a second)."""
+        """A /motor_command as its CDR bytes (a1_interface.wire: this runs 500 times a second)."""
         result = self.bridge.offer_command(*wire.decode_motor_command(raw))
         if result == "rejected":
             self.get_logger().warning(f"rejected /motor_command: {self.bridge.logic.watchdog.last_error}",

@@ -12,7 +12,7 @@ import numpy as np
 from a1_common.command import JointCommand, MotorMode
 from a1_common.kinematics import quat_to_matrix
 from a1_common.robot import NUM_JOINTS, A1Constants
-from a1_sim_bridge.sim import SensorReadings
+from a1_interface.sensors import SensorReadings
 
 from a1_hw_bridge.protocol import NUM_ROBOT_MOTORS, SERVO_MODE, LowCmd, LowState
 

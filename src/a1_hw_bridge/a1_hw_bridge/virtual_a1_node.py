@@ -13,14 +13,15 @@ from dataclasses import dataclass
 
 from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, setting
 from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_interface.contract import CONTROL_QOS
 from a1_sim_bridge.sim import SensorNoise, SimConfig
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 from a1_hw_bridge.virtual_a1 import VirtualA1, VirtualA1Config, VirtualA1Server
-from a1_sim_bridge import conversions as cv
+from a1_interface import contract
+from a1_interface import conversions as cv
 
 
 @dataclass(frozen=True)
@@ -45,8 +46,8 @@ class VirtualA1Node(Node):
             self.robot = VirtualA1(config, sim_config)
         constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.publish_ground_truth = bool(params["publish_ground_truth"])
-        self.pub_truth = self.create_publisher(Odometry, "/sim/ground_truth/odom", CONTROL_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.pub_truth = self.create_publisher(Odometry, contract.GROUND_TRUTH, CONTROL_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
         self.server = VirtualA1Server(self.robot, on_tick=self._on_tick)
         self.failure: Exception | None = None
         self.create_timer(1.0, self._publish_diagnostics)

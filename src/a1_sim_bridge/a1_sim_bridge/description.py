@@ -13,9 +13,9 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pybullet_data
+from a1_interface.contract import BASE_FRAME
 
 ROBOT_URDF = Path(pybullet_data.getDataPath()) / "a1" / "a1.urdf"
-BASE_FRAME = "base_link"
 
 
 def robot_description(urdf: Path = ROBOT_URDF) -> str:

@@ -15,11 +15,12 @@ from a1_common.command import JointCommand
 from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
 from a1_common.node_support import constrain_parameters, declare_parameters, run_node
 from a1_common.robot import a1
+from a1_interface.contract import CONTROL_QOS
+from a1_interface.conversions import motor_command_msg, ns_from_stamp
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from a1_sim_bridge.conversions import motor_command_msg, ns_from_stamp
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_interface import contract
 from gait_msgs.msg import MotorCommand
 
 
@@ -41,8 +42,8 @@ class JointHoldNode(Node):
         self.robot = a1()
         self._start: tuple[int, np.ndarray] | None = None
         self._last_ns = -1
-        self.pub = self.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
-        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
+        self.pub = self.create_publisher(MotorCommand, contract.MOTOR_COMMAND, CONTROL_QOS)
+        self.create_subscription(JointState, contract.JOINT_STATES, self._on_joints, CONTROL_QOS)
 
     def _on_joints(self, msg: JointState) -> None:
         now_ns = ns_from_stamp(msg.header.stamp)

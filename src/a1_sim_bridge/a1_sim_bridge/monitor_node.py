@@ -12,12 +12,13 @@ from dataclasses import dataclass
 
 from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
 from a1_common.node_support import constrain_parameters, declare_parameters, run_node
+from a1_interface.contract import CONTROL_QOS
+from a1_interface.conversions import ns_from_stamp
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 
-from a1_sim_bridge.conversions import ns_from_stamp
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_interface import contract
 from gait_msgs.msg import FootContacts
 
 
@@ -50,11 +51,11 @@ class MonitorNode(Node):
         self.first_ns = None
         self.last_print_ns = None
         self.count = 0
-        self.create_subscription(JointState, "/joint_states", self._on_joints, CONTROL_QOS)
-        self.create_subscription(Imu, "/imu/data", lambda m: setattr(self, "imu", m), CONTROL_QOS)
-        self.create_subscription(FootContacts, "/foot_contacts", lambda m: setattr(self, "contacts", m),
+        self.create_subscription(JointState, contract.JOINT_STATES, self._on_joints, CONTROL_QOS)
+        self.create_subscription(Imu, contract.IMU, lambda m: setattr(self, "imu", m), CONTROL_QOS)
+        self.create_subscription(FootContacts, contract.FOOT_CONTACTS, lambda m: setattr(self, "contacts", m),
                                  CONTROL_QOS)
-        self.create_subscription(Odometry, "/sim/ground_truth/odom", lambda m: setattr(self, "truth", m),
+        self.create_subscription(Odometry, contract.GROUND_TRUTH, lambda m: setattr(self, "truth", m),
                                  CONTROL_QOS)
 
     def _on_joints(self, msg: JointState) -> None:

@@ -46,28 +46,23 @@ from a1_common.node_support import (
     diagnostic_array,
     run_node,
 )
+from a1_interface.contract import BASE_FRAME, CONTROL_QOS, IMU_FRAME, LATCHED_QOS
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
-from a1_sim_bridge import conversions as cv
-from a1_sim_bridge import wire
+from a1_interface import contract, wire
+from a1_interface import conversions as cv
 from a1_sim_bridge.description import robot_description
 from a1_sim_bridge.flight_recorder import FlightRecorder
 from a1_sim_bridge.sim import A1Sim, SimConfig
 from gait_msgs.msg import FootContacts, MotorCommand
 
-CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
-# Latched: a node that starts later (robot_state_publisher, RViz, a recorder) still gets it.
-DESCRIPTION_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CLOCK_MODES = ("lockstep", "realtime")
 LEFT_WORLD_HEIGHT = -1.0  # [m] a base this far below the ground's surface has fallen through or off it
 UPRIGHT_TILT = 0.3  # [rad] body tilt under which a robot stands or walks (the controller's falls start far beyond)
@@ -122,18 +117,18 @@ class SimBridgeNode(Node):
         self._applied_stamp_ns = -1  # stamp of the command applied in the last step (-1: none yet)
         self.dt_ns = round(self.sim.config.time_step * 1e9)
         self.joint_names = list(self.sim.robot.joint_names)
-        self.encoders = wire.SensorEncoders(self.joint_names, cv.BASE_FRAME, cv.IMU_FRAME)
+        self.encoders = wire.SensorEncoders(self.joint_names, BASE_FRAME, IMU_FRAME)
 
-        self.pub_joints = self.create_publisher(JointState, "/joint_states", CONTROL_QOS)
-        self.pub_imu = self.create_publisher(Imu, "/imu/data", CONTROL_QOS)
-        self.pub_contacts = self.create_publisher(FootContacts, "/foot_contacts", CONTROL_QOS)
-        self.pub_clock = self.create_publisher(Clock, "/clock", CONTROL_QOS)
-        self.pub_truth = self.create_publisher(Odometry, "/sim/ground_truth/odom", CONTROL_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.pub_joints = self.create_publisher(JointState, contract.JOINT_STATES, CONTROL_QOS)
+        self.pub_imu = self.create_publisher(Imu, contract.IMU, CONTROL_QOS)
+        self.pub_contacts = self.create_publisher(FootContacts, contract.FOOT_CONTACTS, CONTROL_QOS)
+        self.pub_clock = self.create_publisher(Clock, contract.CLOCK, CONTROL_QOS)
+        self.pub_truth = self.create_publisher(Odometry, contract.GROUND_TRUTH, CONTROL_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
         # The URDF, once, latched (what robot_state_publisher and RViz read); its joints are /joint_states'.
-        self.pub_description = self.create_publisher(String, "/robot_description", DESCRIPTION_QOS)
+        self.pub_description = self.create_publisher(String, contract.ROBOT_DESCRIPTION, LATCHED_QOS)
         self.pub_description.publish(String(data=robot_description()))
-        self.create_subscription(MotorCommand, "/motor_command", self._on_command, CONTROL_QOS, raw=True)
+        self.create_subscription(MotorCommand, contract.MOTOR_COMMAND, self._on_command, CONTROL_QOS, raw=True)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.add_on_set_parameters_callback(self._on_set_parameters)

@@ -22,6 +22,7 @@ import pybullet_data
 from a1_common.command import JointCommand
 from a1_common.config import ConfigError, require_choice, require_integer, require_range, setting
 from a1_common.robot import NUM_LEGS, A1Constants, a1
+from a1_interface.sensors import GroundTruth, SensorReadings
 from pybullet_utils import bullet_client
 
 from a1_sim_bridge.worlds import WORLD_NAMES, build_world
@@ -99,33 +100,6 @@ class SimConfig:
                 f"unknown simulation parameters {unknown}; allowed: {sorted(sim_keys | noise_keys)}")
         noise = SensorNoise(**{k: params[k] for k in noise_keys if k in params})
         return cls(noise=noise, **{k: params[k] for k in sim_keys if k in params}).validated()
-
-
-@dataclass
-class SensorReadings:
-    """What the real A1 reports, and nothing more."""
-
-    time: float  # time since reset [s]
-    joint_position: np.ndarray  # (12,) [rad]
-    joint_velocity: np.ndarray  # (12,) [rad/s]
-    joint_torque: np.ndarray  # (12,) torque actually applied, after the motor clip [N m]
-    imu_orientation: np.ndarray  # (4,) base orientation quaternion (x, y, z, w), world frame
-    imu_angular_velocity: np.ndarray  # (3,) base frame [rad/s]
-    imu_linear_acceleration: np.ndarray  # (3,) specific force, base frame [m/s^2] (+g up at rest)
-    foot_contact: np.ndarray  # (4,) bool
-    foot_force: np.ndarray  # (4,) normal force [N]
-
-
-@dataclass
-class GroundTruth:
-    """Simulator-only state, for evaluation and rewards. Never an input to the controller."""
-
-    time: float  # [s]
-    base_position: np.ndarray  # (3,) COM position, world frame [m]
-    base_orientation: np.ndarray  # (4,) (x, y, z, w)
-    base_linear_velocity: np.ndarray  # (3,) world frame [m/s]
-    base_linear_velocity_body: np.ndarray  # (3,) base frame [m/s]
-    base_angular_velocity_body: np.ndarray  # (3,) base frame [rad/s]
 
 
 class A1Sim:

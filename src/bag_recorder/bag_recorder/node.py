@@ -31,6 +31,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from a1_interface import contract
 from bag_recorder.bag import BagWriter, qos_of
 
 
@@ -60,7 +61,7 @@ class RecorderNode(Node):
         self.bag = BagWriter(p["output"] or time.strftime("bag_%Y%m%d_%H%M%S"))
         self.skipped: dict[str, str] = {}  # topic -> why it is not recorded
         self.create_timer(period, self._discover)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"recording every topic into {self.bag.path.resolve()}")
         self._discover()

@@ -1,4 +1,4 @@
-"""convex_mpc node: the 500 Hz locomotion controller behind the robot's topics.
+"""convex_mpc node: the 500 Hz locomotion controller behind the robot's contract.
 
 Runs one control step per sensor step: when /odom (the estimator's output, computed from the
 joint state stamped t_k) arrives and the joint state, IMU and contacts of t_k are in, it publishes
@@ -43,21 +43,20 @@ from a1_common.node_support import (
     diagnostic_array,
     run_node,
 )
-from a1_sim_bridge.conversions import ns_from_stamp
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_interface.contract import COMMAND_QOS, CONTROL_QOS, ESTOP_QOS
+from a1_interface.conversions import ns_from_stamp
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, JointState
 from state_estimator_node.estimator import load_estimator_config
 from state_estimator_node.node import OdometryFrontend, OdomTransformPublisher
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from a1_sim_bridge import wire
+from a1_interface import contract, wire
 from convex_mpc_node.controller import (
     LocomotionController,
     Observation,
@@ -70,8 +69,6 @@ from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
 from convex_mpc_node.supervisor import ControllerSupervisor, SupervisorConfig
 from gait_msgs.msg import FootContacts, GaitState, MotorCommand
 from gait_msgs.msg import GaitParams as GaitParamsMsg
-
-COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 
 @dataclass(frozen=True)
@@ -142,28 +139,27 @@ class ConvexMpcNode(Node):
         self._on_backup = False
         self._backup_sample: tuple[int, np.ndarray] | None = None  # (stamp, velocity) of its last estimate
         self._controlled_ns = -1  # the last step a command was sent for
-        self._last_command: bytes | None = None  # ... and that command (CDR, see a1_sim_bridge.wire)
+        self._last_command: bytes | None = None  # ... and that command (CDR, see a1_interface.wire)
         self._command_encoder = wire.MotorCommandEncoder()
 
-        self.pub_command = self.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
-        self.pub_state = self.create_publisher(GaitState, "/gait/state", CONTROL_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.pub_command = self.create_publisher(MotorCommand, contract.MOTOR_COMMAND, CONTROL_QOS)
+        self.pub_state = self.create_publisher(GaitState, contract.GAIT_STATE, CONTROL_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
         if params["cmd_vel_stamped"]:
-            self.create_subscription(TwistStamped, "/cmd_vel", lambda m: self._on_cmd_vel(m.twist), COMMAND_QOS)
+            self.create_subscription(TwistStamped, contract.CMD_VEL, lambda m: self._on_cmd_vel(m.twist), COMMAND_QOS)
         else:
-            self.create_subscription(Twist, "/cmd_vel", self._on_cmd_vel, COMMAND_QOS)
-        self.create_subscription(GaitParamsMsg, "/gait/params", self._on_gait_params, COMMAND_QOS)
-        # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_sim_bridge.wire).
+            self.create_subscription(Twist, contract.CMD_VEL, self._on_cmd_vel, COMMAND_QOS)
+        self.create_subscription(GaitParamsMsg, contract.GAIT_PARAMS, self._on_gait_params, COMMAND_QOS)
+        # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_interface.wire).
         wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints,
                                on_imu=lambda m: self._on_sensor(self._imu, m),
                                on_contacts=lambda m: self._on_sensor(self._contacts, m))
         if self.frontend is None:
-            self.create_subscription(Odometry, "/odom", self._on_odom, CONTROL_QOS)
+            self.create_subscription(Odometry, contract.ODOM, self._on_odom, CONTROL_QOS)
         else:
-            self.pub_odom = self.create_publisher(Odometry, "/odom", CONTROL_QOS)
+            self.pub_odom = self.create_publisher(Odometry, contract.ODOM, CONTROL_QOS)
             self.tf = OdomTransformPublisher(self)
-        estop_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-        self.create_subscription(Bool, "/estop", self._on_estop, estop_qos)
+        self.create_subscription(Bool, contract.ESTOP, self._on_estop, ESTOP_QOS)
         self.create_service(Trigger, "~/clear_estop", self._on_clear_estop)
         constrain_parameters(self, params, constraints, runtime=RUNTIME_PARAMETERS)
         self.add_on_set_parameters_callback(self._on_set_parameters)

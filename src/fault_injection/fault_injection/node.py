@@ -15,12 +15,13 @@ from dataclasses import dataclass
 
 from a1_common.config import ConfigError, parameter_defaults, parameter_descriptions, recording_constraints, setting
 from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
-from a1_sim_bridge.conversions import ns_from_stamp
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_interface.contract import CONTROL_QOS
+from a1_interface.conversions import ns_from_stamp
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+from a1_interface import contract
 from fault_injection.faults import FaultConfig, FaultInjector
 
 
@@ -68,7 +69,7 @@ class FaultRelayNode(Node):
         self.input_topic = params["input_topic"] or "/fault_in" + topic
         self.pub = self.create_publisher(cls, topic, CONTROL_QOS)
         self.create_subscription(cls, self.input_topic, self._on_message, INPUT_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
         if self.injector.config.delay > 0 and self.injector.config.delay_mode == "wall":
             self.create_timer(0.001, lambda: self._publish(self.injector.due(time.monotonic())))
         self.create_timer(1.0, self._publish_diagnostics)

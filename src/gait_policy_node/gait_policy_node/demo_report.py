@@ -16,16 +16,16 @@ from pathlib import Path
 import numpy as np
 from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
 from a1_common.node_support import constrain_parameters, declare_parameters, run_node
-from a1_sim_bridge.conversions import ns_from_stamp
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_interface.contract import COMMAND_QOS, CONTROL_QOS
+from a1_interface.conversions import ns_from_stamp
 from convex_mpc_node.energy import motor_power
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
+from a1_interface import contract
 from gait_msgs.msg import GaitState
 from gait_policy_node.gait_analysis import (
     classify_gait,
@@ -62,12 +62,11 @@ class DemoReportNode(Node):
         self.missed = "n/a"
         self.first_ns: int | None = None
         self.next_line = 0.0  # [s] of sim time: when the next progress line is due
-        self.create_subscription(GaitState, "/gait/state", self._on_state, CONTROL_QOS)
-        self.create_subscription(Odometry, "/sim/ground_truth/odom", lambda m: setattr(self, "truth", m), CONTROL_QOS)
-        self.create_subscription(JointState, "/joint_states", lambda m: setattr(self, "joints", m), CONTROL_QOS)
-        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.create_subscription(Twist, "/cmd_vel", self._on_cmd, reliable)
-        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
+        self.create_subscription(GaitState, contract.GAIT_STATE, self._on_state, CONTROL_QOS)
+        self.create_subscription(Odometry, contract.GROUND_TRUTH, lambda m: setattr(self, "truth", m), CONTROL_QOS)
+        self.create_subscription(JointState, contract.JOINT_STATES, lambda m: setattr(self, "joints", m), CONTROL_QOS)
+        self.create_subscription(Twist, contract.CMD_VEL, self._on_cmd, COMMAND_QOS)
+        self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, self._on_diag, 10)
 
     def _on_cmd(self, msg: Twist) -> None:
         self.cmd = np.array([msg.linear.x, msg.linear.y, msg.angular.z])

@@ -15,17 +15,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from a1_common.kinematics import quat_to_matrix
+from a1_common.kinematics import heading_frame, quat_to_matrix
 from a1_sim_bridge.sim import A1Sim, SimConfig
 from convex_mpc_node.controller import ControllerConfig, VelocityCommand, load_controller_config
 from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
 from state_estimator_node.estimator import EstimatorConfig, load_estimator_config
 
-from gait_policy_node.rollout import POLICY_PERIOD, ClosedLoop, SpeedProfile, heading_frame
-from gait_policy_node.train_config import EnvConfig, ProfileConfig, RewardConfig
-
-OBSERVATION_SIZES = {"basic": 4, "extended": 4 + 2 + 3 + 12 + 8}
+from gait_policy_node.rollout import POLICY_PERIOD, ClosedLoop, SpeedProfile
+from gait_policy_node.train_config import OBSERVATION_SIZES, EnvConfig, ProfileConfig, RewardConfig
 
 
 def make_profile(cfg: ProfileConfig, seed: int = 0) -> SpeedProfile:

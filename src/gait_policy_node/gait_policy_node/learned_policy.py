@@ -27,8 +27,7 @@ from a1_common.config import ConfigError
 from a1_common.files import TEMPORARY_MARK, write_npz_atomically
 from convex_mpc_node.gait import TWO_PI, GaitParams
 
-from gait_policy_node.env import OBSERVATION_SIZES
-from gait_policy_node.train_config import ActionConfig, TrainConfig, train_config_from_mapping
+from gait_policy_node.train_config import OBSERVATION_SIZES, ActionConfig, TrainConfig, train_config_from_mapping
 
 ACTION_SIZE = 8  # f, 3 x sin, 3 x cos, p_swing
 FORMAT_VERSION = 1

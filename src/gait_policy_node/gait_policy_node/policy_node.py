@@ -30,21 +30,18 @@ from a1_common.config import (
     require_range,
     setting,
 )
-from a1_common.kinematics import quat_to_matrix
+from a1_common.kinematics import heading_frame, quat_to_matrix
 from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_interface.contract import COMMAND_QOS, CONTROL_QOS
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+from a1_interface import contract
 from gait_msgs.msg import GaitParams as GaitParamsMsg
 from gait_policy_node.learned_policy import SHIPPED_POLICY
 from gait_policy_node.policy import make_policy
-from gait_policy_node.rollout import heading_frame
-
-COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 
 @dataclass(frozen=True)
@@ -75,13 +72,13 @@ class GaitPolicyNode(Node):
         self.invalid_outputs = 0  # policy outputs outside the gait parameter ranges, not published
         self.odom_received = False
         self.last_gait = None
-        self.pub = self.create_publisher(GaitParamsMsg, "/gait/params", COMMAND_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.pub = self.create_publisher(GaitParamsMsg, contract.GAIT_PARAMS, COMMAND_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
         if params["cmd_vel_stamped"]:
-            self.create_subscription(TwistStamped, "/cmd_vel", lambda m: self._on_cmd(m.twist), COMMAND_QOS)
+            self.create_subscription(TwistStamped, contract.CMD_VEL, lambda m: self._on_cmd(m.twist), COMMAND_QOS)
         else:
-            self.create_subscription(Twist, "/cmd_vel", self._on_cmd, COMMAND_QOS)
-        self.create_subscription(Odometry, "/odom", self._on_odom, CONTROL_QOS)
+            self.create_subscription(Twist, contract.CMD_VEL, self._on_cmd, COMMAND_QOS)
+        self.create_subscription(Odometry, contract.ODOM, self._on_odom, CONTROL_QOS)
         self.create_timer(1.0 / rate, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"gait policy '{params['policy']}' at {rate:g} Hz")

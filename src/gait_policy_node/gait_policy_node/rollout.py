@@ -15,8 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from a1_common.command import JointCommand
-from a1_common.kinematics import quat_to_matrix
-from a1_sim_bridge.sim import A1Sim, SensorReadings, SimConfig
+from a1_common.kinematics import heading_frame, quat_to_matrix
+from a1_interface.sensors import SensorReadings
+from a1_sim_bridge.sim import A1Sim, SimConfig
 from convex_mpc_node.controller import ControllerConfig, LocomotionController, Observation, VelocityCommand
 from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import GaitParams
@@ -143,14 +144,6 @@ class ClosedLoop:
     def forward_velocity(self) -> float:
         """True base velocity along the robot's heading (yaw-aligned x) [m/s]."""
         return float(heading_frame(self.truth.base_orientation).T[0] @ self.truth.base_linear_velocity)
-
-
-def heading_frame(orientation: np.ndarray) -> np.ndarray:
-    """Rotation yaw-aligned frame -> world for a base orientation quaternion (x, y, z, w)."""
-    rot = quat_to_matrix(orientation)
-    yaw = np.arctan2(rot[1, 0], rot[0, 0])
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def run_closed_loop(schedule: GaitSchedule, profile: SpeedProfile, duration: float, *,

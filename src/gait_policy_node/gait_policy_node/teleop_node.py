@@ -20,11 +20,12 @@ from dataclasses import dataclass
 
 from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
 from a1_common.node_support import constrain_parameters, declare_parameters, run_node
+from a1_interface.contract import COMMAND_QOS
 from geometry_msgs.msg import Twist
 from rclpy.duration import Duration
 from rclpy.node import Node
 
-from gait_policy_node.policy_node import COMMAND_QOS
+from a1_interface import contract
 from gait_policy_node.teleop import KeyDecoder, Teleop
 
 QUIT_ACK_TIMEOUT = 1.0  # [s] the zero command on quitting waits this long at most for its subscribers
@@ -51,7 +52,7 @@ class TeleopNode(Node):
         constrain_parameters(self, p, constraints)  # all read-only: read at start-up
         self.decoder = KeyDecoder()
         self.quit = False
-        self.pub = self.create_publisher(Twist, "/cmd_vel", COMMAND_QOS)
+        self.pub = self.create_publisher(Twist, contract.CMD_VEL, COMMAND_QOS)
         self.create_timer(1.0 / rate, self._tick)
         self._show()
 

@@ -27,7 +27,10 @@ from a1_common.config import (
 )
 
 PROFILE_KINDS = ("ramp", "constant", "steps", "random")
-OBSERVATIONS = ("basic", "extended")
+# Observation name -> size: basic [v_des_x, v_x, v_y, v_z]; extended adds roll, pitch, gyro, 12 joint
+# angles and sin/cos of the 4 leg phases (env.py builds them).
+OBSERVATION_SIZES = {"basic": 4, "extended": 4 + 2 + 3 + 12 + 8}
+OBSERVATIONS = tuple(OBSERVATION_SIZES)
 VELOCITY_SOURCES = ("estimator", "ground_truth")
 POLICY_KINDS = ("mlp", "linear")
 ALGORITHMS = ("cmaes", "ars")

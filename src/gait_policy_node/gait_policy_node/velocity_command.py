@@ -25,9 +25,11 @@ from a1_common.config import (
     setting,
 )
 from a1_common.node_support import constrain_parameters, declare_parameters, run_node
+from a1_interface.contract import COMMAND_QOS
 from geometry_msgs.msg import Twist
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from a1_interface import contract
 
 PROFILES = ("constant", "ramp", "steps")
 
@@ -83,8 +85,7 @@ class VelocityCommandNode(Node):
             self.start_delay = require_range("start_delay", p["start_delay"], 0.0, 3600.0)
             rate = require_range("rate", p["rate"], 1.0, 1000.0)
         constrain_parameters(self, p, constraints)  # all read-only: read at start-up
-        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub = self.create_publisher(Twist, "/cmd_vel", reliable)
+        self.pub = self.create_publisher(Twist, contract.CMD_VEL, COMMAND_QOS)
         self._start = None
         self.create_timer(1.0 / rate, self._tick)
 

@@ -1,4 +1,4 @@
-"""State estimator node: VelocityEstimator behind the robot's sensor topics.
+"""State estimator node: VelocityEstimator behind the robot's sensor contract.
 
 Subscribes /joint_states, /imu/data and /foot_contacts (any bridge, sim or hardware); on every
 joint state it updates the filter with the newest IMU and contact readings and publishes /odom
@@ -14,16 +14,15 @@ import time
 import numpy as np
 from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints
 from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
-from a1_sim_bridge.conversions import BASE_FRAME, ODOM_FRAME, ns_from_stamp
-from a1_sim_bridge.node import CONTROL_QOS
+from a1_interface.contract import BASE_FRAME, CONTROL_QOS, ODOM_FRAME, TF_QOS
+from a1_interface.conversions import ns_from_stamp
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, JointState
 
-from a1_sim_bridge import wire
+from a1_interface import contract, wire
 from gait_msgs.msg import FootContacts
 from state_estimator_node.estimator import Estimate, EstimatorConfig, SensorSample, VelocityEstimator
 from tf2_msgs.msg import TFMessage
@@ -32,7 +31,6 @@ from tf2_msgs.msg import TFMessage
 MAX_SENSOR_SKEW = 0.01
 GYRO_VARIANCE = 1e-4  # [(rad/s)^2] reported for the angular part of the twist
 TF_PERIOD_NS = 20_000_000  # /tf at 50 Hz of stamp time: plenty for RViz, and light beside the 500 Hz /odom
-TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)  # what tf2's listeners subscribe with
 
 
 class OdometryFrontend:
@@ -107,7 +105,7 @@ class OdomTransformPublisher:
     of stamp time (and at once after time went back: a sim reset)."""
 
     def __init__(self, node: Node) -> None:
-        self.pub = node.create_publisher(TFMessage, "/tf", TF_QOS)
+        self.pub = node.create_publisher(TFMessage, contract.TF, TF_QOS)
         self._last_ns: int | None = None
 
     def publish(self, odom: Odometry) -> None:
@@ -144,10 +142,10 @@ class StateEstimatorNode(Node):
         self._contacts: FootContacts | None = None
         self._last_wall = float("-inf")
         self._published = 0
-        self.pub_odom = self.create_publisher(Odometry, "/odom", CONTROL_QOS)
+        self.pub_odom = self.create_publisher(Odometry, contract.ODOM, CONTROL_QOS)
         self.tf = OdomTransformPublisher(self)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_sim_bridge.wire).
+        self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
+        # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_interface.wire).
         wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints,
                                on_imu=lambda m: setattr(self, "_imu", m),
                                on_contacts=lambda m: setattr(self, "_contacts", m))

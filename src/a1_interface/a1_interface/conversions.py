@@ -1,6 +1,6 @@
 """Conversions between the robot-side data classes and ROS messages.
 
-The bridges and the controller send the 500 Hz messages as bytes (a1_sim_bridge.wire); these
+The bridges and the controller send the 500 Hz messages as bytes (wire.py); these
 builders make the same messages as rosidl objects, for the slower nodes, the tests and as the
 reference wire.py is checked against. No rclpy import: messages only.
 """
@@ -13,12 +13,9 @@ from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState
 
-from a1_sim_bridge.sim import GroundTruth, SensorReadings
+from a1_interface.contract import BASE_FRAME, IMU_FRAME, ODOM_FRAME
+from a1_interface.sensors import GroundTruth, SensorReadings
 from gait_msgs.msg import FootContacts, MotorCommand
-
-BASE_FRAME = "base_link"
-IMU_FRAME = "imu_link"
-ODOM_FRAME = "odom"
 
 
 def stamp_from_ns(ns: int) -> Time:

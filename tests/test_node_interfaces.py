@@ -1,5 +1,7 @@
-"""Every parameter of every node is described: ``ros2 param describe`` shows a description, the
-range its validator accepts, and ``read_only`` unless the node applies a runtime change.
+"""What every node of the stack shows the graph: its topics, types and QoS are the contract's
+(a1_interface.contract), the nodes a robot runs load no simulator, and every parameter is described
+(``ros2 param describe``: a description, the range its validator accepts, ``read_only`` unless the
+node applies a runtime change).
 
 The ranges come from the validators themselves (a1_common.config.recording_constraints), the
 descriptions from the config dataclasses (a1_common.config.setting): checked here against the
@@ -10,6 +12,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import subprocess
+import sys
 
 import pytest
 from a1_common.config import (
@@ -29,6 +33,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from ros_helpers import spin_until
+
+from a1_interface import contract
 
 pytestmark = pytest.mark.ros
 RUNTIME = {"convex_mpc": {"mode", "inject_qp_failures"}, "sim_bridge": {"world", "seed"}}
@@ -132,6 +138,50 @@ def stack_nodes(tmp_path_factory):
 
 def _declared(node) -> list[str]:
     return sorted(node.list_parameters([], 0).names)
+
+
+# Modules a robot computer runs: the hardware bridge and the stack's nodes (not the sim bridge).
+ROBOT_NODE_MODULES = ("a1_hw_bridge.node", "convex_mpc_node.node", "state_estimator_node.node",
+                      "gait_policy_node.policy_node")
+ROS_OWN_TOPICS = {"/parameter_events", "/rosout"}
+
+
+@pytest.mark.parametrize("module", ROBOT_NODE_MODULES)
+def test_the_nodes_a_robot_runs_do_not_import_pybullet(module):
+    report = subprocess.run([sys.executable, "-X", "importtime", "-c", f"import {module}"],
+                            capture_output=True, text=True, check=True).stderr
+    imported = {line.split("|")[-1].strip() for line in report.splitlines() if line.startswith("import time:")}
+    assert module in imported  # the report is what we think it is
+    assert not {m for m in imported if m.split(".")[0] in ("pybullet", "pybullet_utils")}, module
+
+
+def test_every_topic_of_every_node_has_the_contracts_type_and_qos(stack_nodes):
+    _, nodes = stack_nodes
+    by_name = {t.name: t for t in contract.TOPICS}
+    checked = set()
+    for node in nodes:
+        if node.get_name() == "bag_recorder":  # subscribes to whatever it discovers, with its own depth
+            continue
+        endpoints = [*node.publishers, *node.subscriptions]
+        for endpoint in endpoints:
+            name = endpoint.topic_name
+            if name in ROS_OWN_TOPICS or name.startswith("/fault_in/"):  # rclpy's own; the relay's input
+                continue
+            assert name in by_name, f"{node.get_name()}: {name} is not in a1_interface.contract.TOPICS"
+            topic = by_name[name]
+            cls = endpoint.msg_type
+            declared = f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
+            if name == contract.CMD_VEL:
+                assert declared in (topic.type, "geometry_msgs/msg/TwistStamped"), (node.get_name(), name)
+            else:
+                assert declared == topic.type, (node.get_name(), name, declared)
+            qos = endpoint.qos_profile
+            assert (qos.reliability, qos.durability, qos.depth) == (
+                topic.qos.reliability, topic.qos.durability, topic.qos.depth), (node.get_name(), name)
+            checked.add(name)
+    assert checked >= {contract.JOINT_STATES, contract.IMU, contract.FOOT_CONTACTS, contract.MOTOR_COMMAND,
+                       contract.ODOM, contract.CMD_VEL, contract.GAIT_PARAMS, contract.GAIT_STATE,
+                       contract.DIAGNOSTICS, contract.ROBOT_DESCRIPTION, contract.TF, contract.ESTOP}
 
 
 def test_every_parameter_of_every_node_has_a_description_and_read_only_unless_applied_at_runtime(stack_nodes):

@@ -27,7 +27,8 @@ from builtin_interfaces.msg import Time
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Imu, JointState
 
-from a1_sim_bridge.sim import SensorReadings
+from a1_interface import contract
+from a1_interface.sensors import SensorReadings
 from gait_msgs.msg import FootContacts, MotorCommand
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
@@ -224,7 +225,7 @@ class MotorCommandEncoder:
 
 
 class SensorEncoders:
-    """A bridge's three sensor messages of one step, in the frames of a1_sim_bridge.conversions."""
+    """A bridge's three sensor messages of one step, in the frames of contract.py."""
 
     def __init__(self, joint_names: list[str], base_frame: str, imu_frame: str) -> None:
         self.joints = JointStateEncoder(joint_names, base_frame)
@@ -302,7 +303,7 @@ def subscribe_sensors(node, qos, on_joints: Callable[[JointStateView], None], on
             handler(msg)
         return on_raw
 
-    for msg_type, topic, decode, handler in ((Imu, "/imu/data", decode_imu, on_imu),
-                                             (FootContacts, "/foot_contacts", decode_foot_contacts, on_contacts),
-                                             (JointState, "/joint_states", JointStateDecoder(), on_joints)):
+    for msg_type, topic, decode, handler in ((Imu, contract.IMU, decode_imu, on_imu),
+                                             (FootContacts, contract.FOOT_CONTACTS, decode_foot_contacts, on_contacts),
+                                             (JointState, contract.JOINT_STATES, JointStateDecoder(), on_joints)):
         node.create_subscription(msg_type, topic, decoding(decode, handler), qos, raw=True)

@@ -1,0 +1,1 @@
+"""The stack's message contract (see contract.py); no simulator in it."""
