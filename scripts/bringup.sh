@@ -3,7 +3,7 @@
 #
 # Usage: scripts/bringup.sh [--world flat|step|rough|soft|slope] [--clock lockstep|realtime]
 #                           [--policy learned|scheduled|walk|slow_trot|rapid_trot|fly_trot|<file>.npz]
-#                           [--bridge sim|hardware|virtual] [--record [DIR]]
+#                           [--bridge sim|hardware|virtual] [--record [DIR]] [--namespace /NAME]
 # --bridge: sim (default) = the PyBullet sim bridge; hardware = the real A1 over its low-level UDP
 #   protocol (config/a1_hw_bridge.yaml, realtime only; read docs/hardware.md first); virtual = the
 #   hardware bridge talking UDP on loopback to a virtual A1 that runs the simulation (--world, --clock).
@@ -11,6 +11,8 @@
 #   (without the ros2 CLI: install/gait_policy_node/lib/gait_policy_node/velocity_command
 #    --ros-args -p profile:=constant -p speed:=1.0 -p use_sim_time:=true; :=false with
 #    --bridge hardware, or virtual in realtime: only the sim bridge and lockstep publish /clock)
+# --namespace: the whole graph in that namespace (/NAME/joint_states, /NAME/cmd_vel, ...), so a second
+#   robot runs beside the first: scripts/bringup.sh --clock lockstep --namespace /a1_2
 # --record: every topic into a rosbag2 bag with MCAP storage (DIR, default <log dir>/bag), written by
 #   bag_recorder in its own process; `ros2 bag info DIR` / `ros2 bag play DIR` / Foxglove open it.
 # Each node is started with `ros2 run` when the ros2 CLI exists, else the installed executable;
@@ -24,8 +26,9 @@ while [ $# -gt 0 ]; do
     --bridge) BRIDGE="${2:?--bridge needs a value}"; shift 2 ;;
     --clock) CLOCK="${2:?--clock needs a value}"; shift 2 ;;
     --policy) POLICY="${2:?--policy needs a value}"; shift 2 ;;
+    --namespace) GS_NAMESPACE="${2:?--namespace needs a value}"; shift 2 ;;
     --record) RECORD=1; if [ $# -gt 1 ] && [ "${2#--}" = "$2" ]; then BAG=$2; shift; fi; shift ;;
-    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
     *) echo "bringup.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -34,6 +37,8 @@ source "$ROOT/scripts/lib/nodes.sh"
 check_choice bringup.sh --world "$WORLD" flat step rough soft slope
 check_choice bringup.sh --clock "$CLOCK" lockstep realtime
 check_choice bringup.sh --bridge "$BRIDGE" sim hardware virtual
+[[ -z "${GS_NAMESPACE:-}" || "$GS_NAMESPACE" =~ ^(/[A-Za-z_][A-Za-z0-9_]*)+$ ]] \
+  || { echo "bringup.sh: --namespace must look like /a1_2 (letters, digits, _), got '$GS_NAMESPACE'" >&2; exit 2; }
 if [ "$BRIDGE" = hardware ]; then
   [ "$CLOCK" = realtime ] || { echo "bringup.sh: --bridge hardware needs --clock realtime (a real robot does not wait for the controller)" >&2; exit 2; }
   [ "$WORLD_GIVEN" = 0 ] || { echo "bringup.sh: --world applies to --bridge sim and virtual, not to the real robot" >&2; exit 2; }
@@ -41,7 +46,7 @@ fi
 resolve_policy bringup.sh "$POLICY"
 # shellcheck disable=SC1091
 source "$ROOT/scripts/env.sh"
-LOGDIR="$ROOT/log/bringup/$(date +%Y%m%d-%H%M%S)"
+LOGDIR="$ROOT/log/bringup/$(date +%Y%m%d-%H%M%S)${GS_NAMESPACE:+${GS_NAMESPACE//\//_}}"
 mkdir -p "$LOGDIR"
 trap 'stop_nodes; [ "$RECORD" = 1 ] && recorder_summary "$LOGDIR"' EXIT
 trap 'exit 130' INT TERM

@@ -48,8 +48,9 @@ class Graph:
     is remapped to the relay's input and a relay process injects the faults.
     """
 
-    def __init__(self, log_dir: Path, faults: dict[str, dict] | None = None) -> None:
+    def __init__(self, log_dir: Path, faults: dict[str, dict] | None = None, namespace: str = "") -> None:
         self.log_dir = log_dir
+        self.namespace = namespace  # "": the root namespace; else every node runs in it
         self.procs: dict[str, subprocess.Popen] = {}
         self.commands: dict[str, list[str]] = {}
         self.faults = faults or {}
@@ -62,6 +63,8 @@ class Graph:
     def start(self, name: str, pkg: str, exe: str, *args: str) -> subprocess.Popen:
         remaps = [a for topic in self.faults if self.publishers[topic] == name
                   for a in ("-r", f"{topic}:=/fault_in{topic}")]
+        if self.namespace:  # the graph's own sim time: its bridge publishes <namespace>/clock
+            remaps += ["-r", f"__ns:={self.namespace}", "-r", "/clock:=clock"]
         if remaps:
             args = (*args, *([] if "--ros-args" in args else ["--ros-args"]), *remaps)
         self.commands[name] = [executable(pkg, exe), *args]

@@ -27,6 +27,7 @@ from ros_helpers import spin_until
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from a1_interface import contract
 from gait_msgs.msg import MotorCommand
 from tf2_msgs.msg import TFMessage
 
@@ -34,8 +35,8 @@ from tf2_msgs.msg import TFMessage
 class Watcher(Node):
     """Publishes /cmd_vel at about 20 Hz (wall) and records ground truth, commands and joints."""
 
-    def __init__(self, context) -> None:
-        super().__init__("e2e_watcher", context=context)
+    def __init__(self, context, namespace: str = "") -> None:
+        super().__init__("e2e_watcher", context=context, namespace=namespace)  # topics: relative, in it
         self.speed: float | None = 0.0  # None: publish nothing
         self.truth: list[tuple[float, float, float]] = []  # (sim time, v_x body, z)
         self.commands: list[float] = []  # stamps of /motor_command [s]
@@ -43,19 +44,19 @@ class Watcher(Node):
         self.diagnostics: dict[str, list[float]] = {}  # status name -> header stamps [s]
         self.transforms: list[tuple[str, str, float]] = []  # /tf: (parent, child, x)
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, reliable)
-        self.create_subscription(TFMessage, "/tf", lambda m: self.transforms.extend(
+        self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, self._on_diagnostics, reliable)
+        self.create_subscription(TFMessage, contract.TF, lambda m: self.transforms.extend(
             (t.header.frame_id, t.child_frame_id, t.transform.translation.x) for t in m.transforms), TF_QOS)
-        self._pub = self.create_publisher(Twist, "/cmd_vel", reliable)
+        self._pub = self.create_publisher(Twist, contract.CMD_VEL, reliable)
         self._last_pub = 0.0
-        self.create_subscription(Odometry, "/sim/ground_truth/odom", self._on_truth, PROBE_QOS)
+        self.create_subscription(Odometry, contract.GROUND_TRUTH, self._on_truth, PROBE_QOS)
 
     def watch_joints_and_commands(self) -> None:
         """Also record /motor_command stamps and /joint_states: 1000 messages/s more for this
         process, which shares the 2 cores with the graph, so only for the tests that need them."""
-        self.create_subscription(MotorCommand, "/motor_command",
+        self.create_subscription(MotorCommand, contract.MOTOR_COMMAND,
                                  lambda m: self.commands.append(ns_from_stamp(m.header.stamp) * 1e-9), PROBE_QOS)
-        self.create_subscription(JointState, "/joint_states", self._on_joints, PROBE_QOS)
+        self.create_subscription(JointState, contract.JOINT_STATES, self._on_joints, PROBE_QOS)
 
     def _on_truth(self, m: Odometry) -> None:
         self.truth.append((ns_from_stamp(m.header.stamp) * 1e-9, m.twist.twist.linear.x, m.pose.pose.position.z))
@@ -92,6 +93,41 @@ def graph(tmp_path, rclpy_context):
     g.stop()
     executor.shutdown()
     watcher.destroy_node()
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_two_namespaced_lockstep_graphs_walk_side_by_side(tmp_path, rclpy_context):
+    """Two whole graphs at once, /a1_1 and /a1_2 (``-r __ns:=...``, the parameter files' ``/**/``
+    keys, each graph's own /clock): each robot walks at its own commanded speed, and nothing of
+    either lands in the root namespace."""
+    speeds = {"/a1_1": 0.5, "/a1_2": 1.0}
+    graphs = {ns: Graph(tmp_path / ns.strip("/"), namespace=ns) for ns in speeds}
+    watchers = {ns: Watcher(rclpy_context, namespace=ns) for ns in speeds}
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    for ns, watcher in watchers.items():
+        executor.add_node(watcher)
+        watcher.speed = speeds[ns]
+    try:
+        for ns, g in graphs.items():
+            (tmp_path / ns.strip("/")).mkdir()
+            g.start_stack("lockstep", 0.5)
+        for ns, g in graphs.items():
+            run_until(executor, watchers[ns], g, 6.5, wall_timeout=400)
+        for ns, watcher in watchers.items():
+            assert watcher.lowest() > 0.18, f"{ns} fell"
+            # Stand-up 1 s, then 1 m/s^2: both are at their speed by t = 3 s.
+            assert watcher.mean_speed(4.5, 6.5) == pytest.approx(speeds[ns], rel=0.15), ns
+            assert {"a1_sim_bridge", "convex_mpc", "gait_policy", "state_estimator"} <= set(watcher.diagnostics)
+        root = {name for name, _ in watchers["/a1_1"].get_topic_names_and_types()
+                if name.count("/") == 1 and name not in ("/rosout", "/parameter_events")}
+        assert not root & {"/joint_states", "/motor_command", "/odom", "/clock", "/cmd_vel"}, root
+    finally:
+        for g in graphs.values():
+            g.stop()
+        executor.shutdown()
+        for watcher in watchers.values():
+            watcher.destroy_node()
 
 
 @pytest.mark.ros

@@ -157,7 +157,7 @@ def test_the_nodes_a_robot_runs_do_not_import_pybullet(module):
 
 def test_every_topic_of_every_node_has_the_contracts_type_and_qos(stack_nodes):
     _, nodes = stack_nodes
-    by_name = {t.name: t for t in contract.TOPICS}
+    by_name = {"/" + t.name: t for t in contract.TOPICS}  # the nodes run in the root namespace here
     checked = set()
     for node in nodes:
         if node.get_name() == "bag_recorder":  # subscribes to whatever it discovers, with its own depth
@@ -179,9 +179,10 @@ def test_every_topic_of_every_node_has_the_contracts_type_and_qos(stack_nodes):
             assert (qos.reliability, qos.durability, qos.depth) == (
                 topic.qos.reliability, topic.qos.durability, topic.qos.depth), (node.get_name(), name)
             checked.add(name)
-    assert checked >= {contract.JOINT_STATES, contract.IMU, contract.FOOT_CONTACTS, contract.MOTOR_COMMAND,
-                       contract.ODOM, contract.CMD_VEL, contract.GAIT_PARAMS, contract.GAIT_STATE,
-                       contract.DIAGNOSTICS, contract.ROBOT_DESCRIPTION, contract.TF, contract.ESTOP}
+    assert checked >= {"/" + n for n in (
+        contract.JOINT_STATES, contract.IMU, contract.FOOT_CONTACTS, contract.MOTOR_COMMAND, contract.ODOM,
+        contract.CMD_VEL, contract.GAIT_PARAMS, contract.GAIT_STATE, contract.DIAGNOSTICS,
+        contract.ROBOT_DESCRIPTION, contract.TF, contract.ESTOP)}
 
 
 def test_every_parameter_of_every_node_has_a_description_and_read_only_unless_applied_at_runtime(stack_nodes):

@@ -35,9 +35,16 @@ _node_command() {  # <pkg> <exe>: set the array _GS_CMD to the command that runs
   fi
 }
 
+GS_NAMESPACE=${GS_NAMESPACE:-}  # non-empty (/a1_1): every node started here runs in that namespace
+
 start_node() {  # <pkg> <exe> <logdir> [args...]: start in the background, log to <logdir>/<exe>.log
   local pkg=$1 exe=$2 logdir=$3; shift 3
   _node_command "$pkg" "$exe" || return 1
+  if [ -n "$GS_NAMESPACE" ]; then  # topics are relative; sim time from this graph's own <ns>/clock
+    local ros=()
+    [[ " $* " == *" --ros-args "* ]] || ros=(--ros-args)
+    set -- "$@" "${ros[@]}" -r "__ns:=$GS_NAMESPACE" -r /clock:=clock
+  fi
   # setsid: the node leads its own process group, so stop_nodes reaches its children too.
   setsid "${_GS_CMD[@]}" "$@" >"$logdir/$exe.log" 2>&1 &
   _GS_PIDS+=($!)

@@ -53,11 +53,12 @@ def sorted_keys(keys) -> list:
 
 
 def load_node_parameters(path: str | os.PathLike, node_name: str) -> dict[str, Any]:
-    """The ``ros__parameters`` mapping of ``node_name`` in a ROS 2 parameter file."""
+    """The ``ros__parameters`` mapping of ``node_name`` in a ROS 2 parameter file: under the node's
+    name in any namespace (``/**/name``, the stack's files), its plain name, or ``/**``."""
     data = load_yaml_mapping(path)
-    section = data.get(node_name, data.get("/**"))
+    section = next((data[key] for key in (f"/**/{node_name}", node_name, "/**") if key in data), None)
     if not isinstance(section, dict) or not isinstance(section.get("ros__parameters"), dict):
-        raise ConfigError(f"{path}: no '{node_name}: ros__parameters:' mapping")
+        raise ConfigError(f"{path}: no '/**/{node_name}: ros__parameters:' mapping")
     return dict(section["ros__parameters"])
 
 

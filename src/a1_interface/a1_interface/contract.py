@@ -1,8 +1,13 @@
 """The stack's message contract: every topic the nodes exchange, with its type, QoS and frame.
 
 One list (TOPICS) for what a newcomer, a hardware bridge or a recorder needs to know of the graph;
-each node takes its names and QoS from here, and ``tests/test_contract.py`` checks the running
-graph against it. Frames follow REP-105 (odom -> base_link); units are SI (REP-103).
+each node takes its names and QoS from here, and ``tests/test_node_interfaces.py`` checks every
+node against it. Frames follow REP-105 (odom -> base_link); units are SI (REP-103).
+
+Names are relative: in the root namespace ``joint_states`` is ``/joint_states``; started with
+``--ros-args -r __ns:=/a1_1`` a whole graph lives under ``/a1_1/``, so a second robot (or a second
+simulated one) runs beside the first. ``clock`` too: the nodes of a namespaced graph remap their
+sim-time subscription with ``-r /clock:=clock`` (scripts/lib/nodes.sh does).
 """
 
 from __future__ import annotations
@@ -43,20 +48,20 @@ class Topic:
     what: str
 
 
-JOINT_STATES = "/joint_states"
-IMU = "/imu/data"
-FOOT_CONTACTS = "/foot_contacts"
-MOTOR_COMMAND = "/motor_command"
-ODOM = "/odom"
-CMD_VEL = "/cmd_vel"
-GAIT_PARAMS = "/gait/params"
-GAIT_STATE = "/gait/state"
-ESTOP = "/estop"
-CLOCK = "/clock"
-TF = "/tf"
-ROBOT_DESCRIPTION = "/robot_description"
-GROUND_TRUTH = "/sim/ground_truth/odom"
-DIAGNOSTICS = "/diagnostics"
+JOINT_STATES = "joint_states"
+IMU = "imu/data"
+FOOT_CONTACTS = "foot_contacts"
+MOTOR_COMMAND = "motor_command"
+ODOM = "odom"
+CMD_VEL = "cmd_vel"
+GAIT_PARAMS = "gait/params"
+GAIT_STATE = "gait/state"
+ESTOP = "estop"
+CLOCK = "clock"
+TF = "tf"
+ROBOT_DESCRIPTION = "robot_description"
+GROUND_TRUTH = "sim/ground_truth/odom"
+DIAGNOSTICS = "diagnostics"
 
 BRIDGES = ("sim_bridge", "hw_bridge")
 TOPICS = (
