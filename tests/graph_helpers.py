@@ -10,15 +10,18 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+from a1_common.config import load_node_parameters
+from a1_common.robot import a1
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import spin_until
 from std_srvs.srv import SetBool
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config"
-DAMPING_KD = 2.0  # config/a1_robot.yaml damping_kd [N m s/rad]
-MOTOR_TORQUE_LIMIT = 33.5  # [N m]
-SIM_DT = 0.002  # config/a1_sim_bridge.yaml time_step [s]
+# From the files the nodes read, so a retuned config cannot leave the tests checking the old values.
+DAMPING_KD = a1().damping_kd  # config/a1_robot.yaml [N m s/rad]
+MOTOR_TORQUE_LIMIT = a1().motor_torque_limit  # [N m]
+SIM_DT = float(load_node_parameters(CONFIG / "a1_sim_bridge.yaml", "sim_bridge")["time_step"])  # [s]
 # Probes' subscriptions to the 500 Hz topics: a test process is slower than the nodes, so it keeps a
 # deep queue (the graph's own depth 1 would drop samples whenever pytest falls behind).
 PROBE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)

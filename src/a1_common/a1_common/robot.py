@@ -22,6 +22,10 @@ JOINTS_PER_LEG = 3
 NUM_JOINTS = NUM_LEGS * JOINTS_PER_LEG
 CONFIG_ENV_VAR = "A1_ROBOT_CONFIG"
 # Side of each leg's hip link, in leg order FR, FL, RR, RL: +1 left, -1 right.
+# Base COM height [m] under which the A1 has fallen: the sim bridge's flight recorder and "left
+# the world" checks, the in-process closed loop's episode end, the demo's summary. Walking stays
+# above 0.22 m (nominal 0.26 m).
+FALL_HEIGHT = 0.18
 LEG_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0])
 LEG_SIGNS.flags.writeable = False
 
@@ -49,10 +53,6 @@ class A1Constants:
     urdf_total_mass: float  # [kg]
     nominal_mass: float  # [kg]
     gravity: float  # [m/s^2]
-
-    def leg_sign(self, leg: int) -> float:
-        """+1 for left legs (FL, RL), -1 for right legs (FR, RR): the side of the hip link."""
-        return float(LEG_SIGNS[leg])
 
 
 def default_config_path() -> Path:

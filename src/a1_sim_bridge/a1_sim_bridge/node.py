@@ -46,6 +46,7 @@ from a1_common.node_support import (
     diagnostic_array,
     run_node,
 )
+from a1_common.robot import FALL_HEIGHT
 from a1_interface.contract import BASE_FRAME, CONTROL_QOS, IMU_FRAME, LATCHED_QOS
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Odometry
@@ -80,7 +81,7 @@ class NodeParameters:
     publish_ground_truth: bool = setting(True, "publish the true base state on /sim/ground_truth/odom")
     flight_recorder_dir: str = setting("", "write the last seconds before a fall here as .npz ('': off)")
     flight_recorder_seconds: float = setting(5.0, "seconds the flight recorder keeps [s]")
-    fall_height: float = setting(0.18, "base height under which the robot has fallen [m]")
+    fall_height: float = setting(FALL_HEIGHT, "base height under which the robot has fallen [m]")
 
 
 NODE_PARAMETERS = parameter_defaults(NodeParameters())

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
 from a1_common.node_support import constrain_parameters, declare_parameters, run_node
+from a1_common.robot import FALL_HEIGHT
 from a1_interface.contract import COMMAND_QOS, CONTROL_QOS
 from a1_interface.conversions import ns_from_stamp
 from convex_mpc_node.energy import motor_power
@@ -103,7 +104,7 @@ class DemoReportNode(Node):
         t, cmd, v, x, y, z, power, freq, swing = (data[:, i] for i in range(9))
         print(f"\n=== demo summary: {t[-1]:.1f} s of sim time ===")
         print(f"distance {np.hypot(x[-1] - x[0], y[-1] - y[0]):.2f} m, mean speed {np.mean(v):.2f} m/s, "
-              f"lowest base height {np.min(z):.3f} m ({'FELL' if np.min(z) < 0.18 else 'no fall'}), "
+              f"lowest base height {np.min(z):.3f} m ({'FELL' if np.min(z) < FALL_HEIGHT else 'no fall'}), "
               f"controller steps over their 2 ms budget: {self.missed}")
         series = {"time": t, "desired_speed": cmd, "speed": v, "power": power, "frequency": freq,
                   "swing_ratio": swing, "phase_offsets": data[:, 9:13], "contacts": data[:, 17:21] > 0.5}

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 from a1_common.config import ConfigError
+from a1_sim_bridge.worlds import WORLD_NAMES
 from convex_mpc_node.gait import GaitParams
 
 from gait_policy_node.env import GaitEnv
@@ -95,7 +96,7 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--target-speed", type=float, help="ramp end speed [m/s]")
     parser.add_argument("--acceleration", type=float, help="ramp / random acceleration [m/s^2]")
     parser.add_argument("--duration", type=float, help="episode length [s] (default: the config's)")
-    parser.add_argument("--world", choices=("flat", "step", "rough", "soft", "slope"))
+    parser.add_argument("--world", choices=WORLD_NAMES)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--config", help="config for hand-tuned gaits (default config/train_es.yaml)")
     parser.add_argument("--out", type=Path)

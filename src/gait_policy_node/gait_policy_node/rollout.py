@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from a1_common.command import JointCommand
 from a1_common.kinematics import heading_frame, quat_to_matrix
+from a1_common.robot import FALL_HEIGHT
 from a1_interface.sensors import SensorReadings
 from a1_sim_bridge.sim import A1Sim, SimConfig
 from convex_mpc_node.controller import ControllerConfig, LocomotionController, Observation, VelocityCommand
@@ -25,7 +26,6 @@ from state_estimator_node.estimator import EstimatorConfig, SensorSample, Veloci
 
 POLICY_PERIOD = 0.05  # [s]: gait parameters change at 20 Hz
 FALL_TILT = np.radians(30.0)  # a fall: body tilted more than this ...
-FALL_HEIGHT = 0.18  # ... or base COM below this [m]
 
 SpeedProfile = Callable[[float], VelocityCommand]
 GaitSchedule = Callable[[float, VelocityCommand], GaitParams]

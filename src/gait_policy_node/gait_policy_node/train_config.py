@@ -25,6 +25,7 @@ from a1_common.config import (
     require_integer,
     require_range,
 )
+from a1_sim_bridge.worlds import WORLD_NAMES  # names only: no simulator imported
 
 PROFILE_KINDS = ("ramp", "constant", "steps", "random")
 # Observation name -> size: basic [v_des_x, v_x, v_y, v_z]; extended adds roll, pitch, gyro, 12 joint
@@ -35,7 +36,6 @@ VELOCITY_SOURCES = ("estimator", "ground_truth")
 POLICY_KINDS = ("mlp", "linear")
 ALGORITHMS = ("cmaes", "ars")
 BACKENDS = ("process", "ray", "serial")
-WORLDS = ("flat", "step", "rough", "soft", "slope")
 
 
 def _choice(name: str, value: str, allowed: tuple[str, ...]) -> str:
@@ -102,7 +102,7 @@ class EnvConfig:
         require_integer("env.episode_steps", self.episode_steps, 1, 100_000)
         _choice("env.observation", self.observation, OBSERVATIONS)
         _choice("env.velocity_source", self.velocity_source, VELOCITY_SOURCES)
-        _choice("env.world", self.world, WORLDS)
+        _choice("env.world", self.world, WORLD_NAMES)
         require_range("env.ground_friction", self.ground_friction, 0.0, 5.0, low_open=True)
         self.profile.validated()
         return self
