@@ -10,6 +10,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+from a1_bringup.graph import describe
 from a1_common.config import load_node_parameters
 from a1_common.robot import a1
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -82,14 +83,12 @@ class Graph:
 
     def start_stack(self, clock: str = "lockstep", lockstep_timeout: float = 0.5, *controller_params: str,
                     policy_params: tuple[str, ...] = (), real_time_factor: float = 1.0) -> None:
-        """Sim bridge, estimator, controller, gait policy (and any fault relays); ``controller_params``
-        and ``policy_params`` are extra ``name:=value`` (with ``embedded_estimator:=true`` no
-        state_estimator process starts, and the controller publishes /odom)."""
-        # Realtime: the controller with config/convex_mpc_realtime.yaml, which embeds the estimator.
+        """The graph a1_bringup.graph describes for ``clock`` with the sim bridge (and any fault
+        relays); ``controller_params`` and ``policy_params`` are extra ``name:=value`` (with
+        ``embedded_estimator:=true`` no state_estimator process starts, and the controller
+        publishes /odom)."""
         self.realtime = clock == "realtime"
         embedded = self.realtime or "embedded_estimator:=true" in controller_params
-        # Sim time in lockstep only: in realtime the sim follows the wall clock, and 500 Hz /clock
-        # callbacks in every node would cost a good part of a core on a small computer.
         self.sim_time = "true" if clock == "lockstep" else "false"
         if embedded:
             self.publishers["/odom"] = "convex_mpc"
@@ -100,24 +99,21 @@ class Graph:
                      "-p", f"message_type:={message_type}",
                      *[a for key, value in params.items() for a in ("-p", f"{key}:={value}")]]
             self.start(name, "fault_injection", "fault_relay", *relay)
-        sim = ["--ros-args", "--params-file", str(CONFIG / "a1_sim_bridge.yaml"), "-p", f"clock_mode:={clock}",
-               "-p", f"lockstep_timeout:={lockstep_timeout}", "-p", f"real_time_factor:={real_time_factor}",
-               "-p", f"flight_recorder_dir:={self.log_dir}"]  # a fall: its last seconds, see fall_records
-        self.start("sim_bridge", "a1_sim_bridge", "sim_bridge", *sim)
-        if not embedded:
-            self.start("state_estimator", "state_estimator_node", "state_estimator", "--ros-args", "--params-file",
-                       str(CONFIG / "state_estimator.yaml"), "-p", f"use_sim_time:={self.sim_time}")
-        self.start_controller(*controller_params)
-        extra = [a for p in policy_params for a in ("-p", p)]
-        self.start("gait_policy", "gait_policy_node", "gait_policy", "--ros-args", "--params-file",
-                   str(CONFIG / "gait_policy.yaml"), "-p", f"use_sim_time:={self.sim_time}", *extra)
+        extra = {"sim_bridge": {"lockstep_timeout": lockstep_timeout, "real_time_factor": real_time_factor,
+                                "flight_recorder_dir": self.log_dir},  # a fall: its last seconds, see fall_records
+                 "convex_mpc": dict(p.split(":=", 1) for p in controller_params),
+                 "gait_policy": dict(p.split(":=", 1) for p in policy_params)}
+        for node in describe(clock, "sim", embedded_estimator=embedded):
+            node.params.update({k: str(v) for k, v in extra.get(node.name, {}).items()})
+            self.start(node.name, node.package, node.executable, *node.arguments(CONFIG))
 
     def start_controller(self, *params: str) -> None:
-        files = [CONFIG / "convex_mpc.yaml", *([CONFIG / "convex_mpc_realtime.yaml"] if self.realtime else [])]
-        extra = [a for p in params for a in ("-p", p)]
-        self.start("convex_mpc", "convex_mpc_node", "convex_mpc", "--ros-args",
-                   *[a for f in files for a in ("--params-file", str(f))], "-p", f"use_sim_time:={self.sim_time}",
-                   *extra)
+        """The controller as the graph describes it for this graph's clock (after a kill, or next to
+        a hand-started bridge), with extra ``name:=value`` parameters."""
+        spec = next(n for n in describe("realtime" if self.realtime else "lockstep", "sim",
+                                              embedded_estimator=self.realtime) if n.name == "convex_mpc")
+        spec.params.update(p.split(":=", 1) for p in params)
+        self.start(spec.name, spec.package, spec.executable, *spec.arguments(CONFIG))
 
     def kill(self, name: str) -> None:
         proc = self.procs.pop(name)

@@ -14,6 +14,7 @@ import socket
 
 import numpy as np
 import pytest
+from a1_bringup.graph import describe
 from diagnostic_msgs.msg import DiagnosticArray
 from graph_helpers import CONFIG, DAMPING_KD, MOTOR_TORQUE_LIMIT, Graph, run_until
 from ros_helpers import spin_until
@@ -29,18 +30,14 @@ def free_udp_port() -> int:
 
 
 def start_hil_graph(g: Graph, packet_loss: float, lockstep_timeout: float = 0.5) -> None:
+    """The graph a1_bringup.graph describes for the virtual bridge in lockstep, on a free port."""
     port = free_udp_port()
-    g.start("virtual_a1", "a1_hw_bridge", "virtual_a1", "--ros-args", "--params-file", str(CONFIG / "virtual_a1.yaml"),
-            "-p", "clock_mode:=lockstep", "-p", f"port:={port}", "-p", f"packet_loss:={packet_loss}",
-            "-p", "loss_seed:=7", "-p", "settle_time:=0.0")
-    g.start("hw_bridge", "a1_hw_bridge", "hw_bridge", "--ros-args", "--params-file", str(CONFIG / "a1_hw_bridge.yaml"),
-            "-p", "clock_mode:=lockstep", "-p", "robot_ip:=127.0.0.1", "-p", f"robot_port:={port}",
-            "-p", "local_port:=0", "-p", "state_timeout:=0.02", "-p", f"lockstep_timeout:={lockstep_timeout}")
-    g.start("state_estimator", "state_estimator_node", "state_estimator", "--ros-args", "--params-file",
-            str(CONFIG / "state_estimator.yaml"), "-p", "use_sim_time:=true")
-    g.start_controller()
-    g.start("gait_policy", "gait_policy_node", "gait_policy", "--ros-args", "--params-file",
-            str(CONFIG / "gait_policy.yaml"), "-p", "use_sim_time:=true")
+    extra = {"virtual_a1": {"port": port, "packet_loss": packet_loss, "loss_seed": 7, "settle_time": 0.0},
+             "hw_bridge": {"robot_port": port, "local_port": 0, "state_timeout": 0.02,
+                           "lockstep_timeout": lockstep_timeout}}
+    for node in describe("lockstep", "virtual"):
+        node.params.update({k: str(v) for k, v in extra.get(node.name, {}).items()})
+        g.start(node.name, node.package, node.executable, *node.arguments(CONFIG))
 
 
 def first_damped_tick(joints: list[tuple[float, np.ndarray, np.ndarray]], after: float) -> float | None:

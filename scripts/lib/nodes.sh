@@ -86,36 +86,19 @@ recorder_summary() {  # <logdir>: what the recorder wrote (after stop_nodes clos
   grep -h -A1000 "bag_recorder: wrote" "$1/record.log" 2>/dev/null || echo "[nodes] the recorder wrote no summary; see $1/record.log"
 }
 
-start_graph() {  # <logdir> <world> <clock> <policy> [bridge]: a bridge and the three stack nodes
+start_graph() {  # <logdir> <world> <clock> <policy> [bridge]: a bridge and the stack nodes (a1_bringup.graph)
   # bridge: sim (default) | hardware (the real A1, realtime) | virtual (hw_bridge + virtual_a1 on loopback)
-  local logdir=$1 world=$2 clock=$3 policy=$4 bridge=${5:-sim} cfg="$GAIT_STACK_ROOT/config"
+  local logdir=$1 world=$2 clock=$3 policy=$4 bridge=${5:-sim}
+  local sets=(--set "gait_policy.policy=$policy")
   case "$bridge" in
-    sim)
-      start_node a1_sim_bridge sim_bridge "$logdir" --ros-args --params-file "$cfg/a1_sim_bridge.yaml" \
-        -p world:="$world" -p clock_mode:="$clock" -p flight_recorder_dir:="$logdir" ;;  # a fall: its last 5 s
-    virtual)
-      start_node a1_hw_bridge virtual_a1 "$logdir" --ros-args --params-file "$cfg/virtual_a1.yaml" \
-        -p world:="$world" -p clock_mode:="$clock"
-      start_node a1_hw_bridge hw_bridge "$logdir" --ros-args --params-file "$cfg/a1_hw_bridge.yaml" \
-        -p robot_ip:=127.0.0.1 -p clock_mode:="$clock" ;;
-    hardware)
-      start_node a1_hw_bridge hw_bridge "$logdir" --ros-args --params-file "$cfg/a1_hw_bridge.yaml" ;;
-    *) echo "nodes.sh: unknown bridge '$bridge' (sim, hardware, virtual)" >&2; return 1 ;;
+    sim) sets+=(--set "sim_bridge.world=$world" --set "sim_bridge.flight_recorder_dir=$logdir") ;;  # a fall: its last 5 s
+    virtual) sets+=(--set "virtual_a1.world=$world") ;;
   esac
-  # Sim time in lockstep only. In realtime the sim follows the wall clock (the nodes work on the
-  # sensors' stamps), and 500 Hz /clock callbacks in every node would cost a good part of a core.
-  # Realtime: the controller runs the estimator core itself, with the realtime overlay of its
-  # parameters (config/convex_mpc_realtime.yaml, see docs/architecture.md); no state_estimator process.
-  local sim_time=false overlay=()
-  if [ "$clock" = lockstep ]; then
-    sim_time=true
-    start_node state_estimator_node state_estimator "$logdir" --ros-args --params-file "$cfg/state_estimator.yaml" \
-      -p use_sim_time:=true
-  else
-    overlay=(--params-file "$cfg/convex_mpc_realtime.yaml")
-  fi
-  start_node convex_mpc_node convex_mpc "$logdir" --ros-args --params-file "$cfg/convex_mpc.yaml" "${overlay[@]}" \
-    -p use_sim_time:=$sim_time
-  start_node gait_policy_node gait_policy "$logdir" --ros-args --params-file "$cfg/gait_policy.yaml" \
-    -p use_sim_time:=$sim_time -p policy:="$policy"
+  local lines line spec
+  lines=$(python -m a1_bringup.graph --clock "$clock" --bridge "$bridge" --config "$GAIT_STACK_ROOT/config" \
+    "${sets[@]}") || return 1
+  while IFS= read -r line; do
+    eval "spec=($line)"  # shell-quoted by the describer (shlex.join): package, executable, arguments
+    start_node "${spec[0]}" "${spec[1]}" "$logdir" "${spec[@]:2}"
+  done <<<"$lines"
 }

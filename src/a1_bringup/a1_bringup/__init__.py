@@ -1,0 +1,1 @@
+"""The node graph described once (graph.py)."""

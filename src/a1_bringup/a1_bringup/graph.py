@@ -1,0 +1,110 @@
+"""The node graph, described once: which nodes run for a clock and a bridge, each with its package,
+executable, parameter files (from ``config/``) and parameters. No ROS import.
+
+scripts/lib/nodes.sh (bring-up and demo) starts the lines this prints; tests/graph_helpers.py (the
+end-to-end tests and benchmarks) starts the same NodeSpecs. The rules:
+
+- bridge ``sim``: sim_bridge; ``virtual``: virtual_a1 (the simulated robot behind the A1's UDP
+  protocol) and hw_bridge on loopback; ``hardware``: hw_bridge to the real A1 (realtime only).
+- lockstep: every stack node on sim time; the state estimator is its own process unless the
+  controller embeds it (``embedded_estimator``).
+- realtime: wall clock; the controller embeds the estimator and loads the realtime overlay
+  config/convex_mpc_realtime.yaml (docs/architecture.md, "Realtime on a small computer").
+
+    python -m a1_bringup.graph --clock lockstep --bridge sim --config config --set gait_policy.policy=learned
+
+prints one shell-quoted line per node: package, executable, arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+CLOCKS = ("lockstep", "realtime")
+BRIDGES = ("sim", "virtual", "hardware")
+
+
+@dataclass
+class NodeSpec:
+    name: str  # the node's name (and its log's)
+    package: str
+    executable: str
+    param_files: list[str]  # file names under config/, in load order (later ones override)
+    params: dict[str, str] = field(default_factory=dict)  # -p name:=value, after the files
+
+    def arguments(self, config_dir: Path) -> list[str]:
+        """The node's command-line arguments (after the executable)."""
+        args = ["--ros-args"]
+        for name in self.param_files:
+            args += ["--params-file", str(config_dir / name)]
+        for key, value in self.params.items():
+            args += ["-p", f"{key}:={value}"]
+        return args
+
+
+def describe(clock: str, bridge: str = "sim", *, embedded_estimator: bool | None = None) -> list[NodeSpec]:
+    """The graph for ``clock`` and ``bridge`` (``embedded_estimator`` None: embedded in realtime only)."""
+    if clock not in CLOCKS:
+        raise ValueError(f"clock must be one of {list(CLOCKS)}, got {clock!r}")
+    if bridge not in BRIDGES:
+        raise ValueError(f"bridge must be one of {list(BRIDGES)}, got {bridge!r}")
+    if bridge == "hardware" and clock != "realtime":
+        raise ValueError("bridge hardware needs clock realtime (a real robot does not wait for the controller)")
+    embedded = clock == "realtime" if embedded_estimator is None else embedded_estimator
+    # Sim time in lockstep only: in realtime the nodes work on the sensors' stamps, and 500 Hz /clock
+    # callbacks in every node would cost a good part of a core on a small computer.
+    sim_time = {"use_sim_time": "true" if clock == "lockstep" else "false"}
+    nodes = {
+        "sim": [NodeSpec("sim_bridge", "a1_sim_bridge", "sim_bridge", ["a1_sim_bridge.yaml"], {"clock_mode": clock})],
+        "virtual": [NodeSpec("virtual_a1", "a1_hw_bridge", "virtual_a1", ["virtual_a1.yaml"], {"clock_mode": clock}),
+                    NodeSpec("hw_bridge", "a1_hw_bridge", "hw_bridge", ["a1_hw_bridge.yaml"],
+                             {"robot_ip": "127.0.0.1", "clock_mode": clock})],
+        "hardware": [NodeSpec("hw_bridge", "a1_hw_bridge", "hw_bridge", ["a1_hw_bridge.yaml"])],
+    }[bridge]
+    if not embedded:
+        nodes.append(NodeSpec("state_estimator", "state_estimator_node", "state_estimator", ["state_estimator.yaml"],
+                              dict(sim_time)))
+    controller_files = ["convex_mpc.yaml", *(["convex_mpc_realtime.yaml"] if clock == "realtime" else [])]
+    controller = {**sim_time, **({"embedded_estimator": "true"} if embedded and clock == "lockstep" else {})}
+    nodes.append(NodeSpec("convex_mpc", "convex_mpc_node", "convex_mpc", controller_files, controller))
+    nodes.append(NodeSpec("gait_policy", "gait_policy_node", "gait_policy", ["gait_policy.yaml"], dict(sim_time)))
+    return nodes
+
+
+def with_settings(nodes: list[NodeSpec], settings: list[str]) -> list[NodeSpec]:
+    """``node.param=value`` settings applied to ``nodes``; ValueError naming a node not in the graph."""
+    by_name = {n.name: n for n in nodes}
+    for item in settings:
+        target, sep, value = item.partition("=")
+        node, dot, param = target.partition(".")
+        if not sep or not dot or not param:
+            raise ValueError(f"--set must look like node.parameter=value, got {item!r}")
+        if node not in by_name:
+            raise ValueError(f"--set {item!r}: no node {node!r} in this graph; nodes: {sorted(by_name)}")
+        by_name[node].params[param] = value
+    return nodes
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m a1_bringup.graph", description=__doc__.split("\n")[0])
+    parser.add_argument("--clock", required=True, choices=CLOCKS)
+    parser.add_argument("--bridge", default="sim", choices=BRIDGES)
+    parser.add_argument("--config", type=Path, required=True, help="the config/ folder")
+    parser.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE")
+    args = parser.parse_args(argv)
+    try:
+        nodes = with_settings(describe(args.clock, args.bridge), args.set)
+    except ValueError as exc:
+        print(f"a1_bringup.graph: {exc}", file=sys.stderr)
+        return 2
+    for node in nodes:
+        print(shlex.join([node.package, node.executable, *node.arguments(args.config)]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,63 @@
+"""The graph description (a1_bringup.graph) that bring-up, demo, tests and benchmarks start from."""
+
+from __future__ import annotations
+
+import shlex
+
+import pytest
+from a1_bringup.graph import describe, main, with_settings
+from graph_helpers import CONFIG, ROOT
+
+
+def _names(nodes) -> list[str]:
+    return [n.name for n in nodes]
+
+
+def test_lockstep_runs_the_estimator_as_its_own_process_and_every_stack_node_on_sim_time():
+    nodes = describe("lockstep")
+    assert _names(nodes) == ["sim_bridge", "state_estimator", "convex_mpc", "gait_policy"]
+    assert all(n.params["use_sim_time"] == "true" for n in nodes[1:])
+    assert nodes[0].params == {"clock_mode": "lockstep"}
+    assert nodes[2].param_files == ["convex_mpc.yaml"]
+
+
+def test_realtime_embeds_the_estimator_with_the_realtime_overlay_on_the_wall_clock():
+    nodes = describe("realtime")
+    assert _names(nodes) == ["sim_bridge", "convex_mpc", "gait_policy"]
+    assert nodes[1].param_files == ["convex_mpc.yaml", "convex_mpc_realtime.yaml"]
+    assert all(n.params["use_sim_time"] == "false" for n in nodes[1:])
+
+
+def test_lockstep_with_the_embedded_estimator_and_the_bridges():
+    nodes = describe("lockstep", embedded_estimator=True)
+    assert _names(nodes) == ["sim_bridge", "convex_mpc", "gait_policy"]
+    assert nodes[1].params["embedded_estimator"] == "true"
+    assert _names(describe("lockstep", "virtual"))[:2] == ["virtual_a1", "hw_bridge"]
+    assert _names(describe("realtime", "hardware"))[0] == "hw_bridge"
+    with pytest.raises(ValueError, match="bridge hardware needs clock realtime"):
+        describe("lockstep", "hardware")
+    with pytest.raises(ValueError, match="clock must be one of"):
+        describe("fast")
+
+
+def test_every_file_and_executable_it_names_exists():
+    for clock, bridge in [("lockstep", "sim"), ("realtime", "sim"), ("lockstep", "virtual"), ("realtime", "hardware")]:
+        for node in describe(clock, bridge):
+            assert all((CONFIG / f).is_file() for f in node.param_files), node
+            assert (ROOT / "install" / node.package / "lib" / node.package / node.executable).exists(), node
+
+
+def test_settings_and_the_shell_lines(capsys, tmp_path):
+    with pytest.raises(ValueError, match="no node 'state_estimator'"):
+        with_settings(describe("realtime"), ["state_estimator.max_gap=0.1"])
+    with pytest.raises(ValueError, match=r"node\.parameter=value"):
+        with_settings(describe("realtime"), ["policy=learned"])
+    config = tmp_path / "a config"  # a path with a space survives the shell quoting
+    assert main(["--clock", "lockstep", "--config", str(config), "--set", "gait_policy.policy=a b.npz"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 4
+    policy = shlex.split(lines[-1])
+    assert policy[:2] == ["gait_policy_node", "gait_policy"]
+    assert policy[2:] == ["--ros-args", "--params-file", str(config / "gait_policy.yaml"),
+                          "-p", "use_sim_time:=true", "-p", "policy:=a b.npz"]
+    assert main(["--clock", "lockstep", "--bridge", "hardware", "--config", "config"]) == 2
