@@ -9,7 +9,7 @@ from a1_sim_bridge.sim import A1Sim, SimConfig
 from convex_mpc_node.node import ConvexMpcNode
 from nav_msgs.msg import Odometry
 from state_estimator_node.estimator import EstimatorConfig
-from state_estimator_node.node import OdometryFrontend
+from state_estimator_node.frontend import OdometryFrontend
 
 from a1_interface import conversions as cv
 from a1_interface import wire

@@ -52,7 +52,8 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import Imu, JointState
 from state_estimator_node.estimator import load_estimator_config
-from state_estimator_node.node import OdometryFrontend, OdomTransformPublisher
+from state_estimator_node.frontend import OdometryFrontend
+from state_estimator_node.node import OdomTransformPublisher
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 

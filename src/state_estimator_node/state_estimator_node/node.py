@@ -14,7 +14,7 @@ import time
 import numpy as np
 from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints
 from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
-from a1_interface.contract import BASE_FRAME, CONTROL_QOS, ODOM_FRAME, TF_QOS
+from a1_interface.contract import CONTROL_QOS, TF_QOS
 from a1_interface.conversions import ns_from_stamp
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TransformStamped
@@ -24,80 +24,11 @@ from sensor_msgs.msg import Imu, JointState
 
 from a1_interface import contract, wire
 from gait_msgs.msg import FootContacts
-from state_estimator_node.estimator import Estimate, EstimatorConfig, SensorSample, VelocityEstimator
+from state_estimator_node.estimator import EstimatorConfig
+from state_estimator_node.frontend import OdometryFrontend
 from tf2_msgs.msg import TFMessage
 
-# IMU / contact readings older than this relative to the joint state are not used [s].
-MAX_SENSOR_SKEW = 0.01
-GYRO_VARIANCE = 1e-4  # [(rad/s)^2] reported for the angular part of the twist
 TF_PERIOD_NS = 20_000_000  # /tf at 50 Hz of stamp time: plenty for RViz, and light beside the 500 Hz /odom
-
-
-class OdometryFrontend:
-    """One sensor step's messages -> a filter update -> nav_msgs/Odometry. No rclpy Node: shared by
-    the state_estimator node and the convex_mpc node's embedded estimator (one process, no /odom hop)."""
-
-    def __init__(self, config: EstimatorConfig) -> None:
-        self.estimator = VelocityEstimator(config.validated())
-        self.joint_names = list(self.estimator.robot.joint_names)
-        self.position = np.zeros(2)  # dead-reckoned x, y in odom [m]
-        self.last_ns: int | None = None
-        self.skewed = 0
-        self.wrong_names = 0
-
-    def update(self, joints: JointState, imu: Imu, contacts: FootContacts) -> Estimate | None:
-        """The estimate for this step (``odometry`` makes its /odom), or None when the step is refused
-        (and counted): IMU or contacts more than MAX_SENSOR_SKEW from the joint state, wrong joint
-        names, NaN/inf."""
-        now_ns = ns_from_stamp(joints.header.stamp)
-        if (abs(now_ns - ns_from_stamp(imu.header.stamp)) * 1e-9 > MAX_SENSOR_SKEW
-                or abs(now_ns - ns_from_stamp(contacts.header.stamp)) * 1e-9 > MAX_SENSOR_SKEW):
-            self.skewed += 1
-            return None
-        if list(joints.name) != self.joint_names:
-            self.wrong_names += 1
-            self.estimator.rejected_samples += 1
-            return None
-        o, w, a = imu.orientation, imu.angular_velocity, imu.linear_acceleration
-        sample = SensorSample(
-            time=now_ns * 1e-9, joint_position=np.asarray(joints.position, dtype=float),
-            joint_velocity=np.asarray(joints.velocity, dtype=float), orientation=np.array([o.x, o.y, o.z, o.w]),
-            angular_velocity=np.array([w.x, w.y, w.z]), linear_acceleration=np.array([a.x, a.y, a.z]),
-            foot_contact=np.asarray(contacts.contact, dtype=bool),
-            foot_force=np.asarray(contacts.normal_force, dtype=float))
-        rejected_before = self.estimator.rejected_samples
-        est = self.estimator.update(sample)
-        if self.estimator.rejected_samples > rejected_before:
-            return None
-        if self.last_ns is not None and now_ns > self.last_ns:
-            self.position += est.velocity_world[:2] * (now_ns - self.last_ns) * 1e-9
-        elif self.last_ns is not None and now_ns < self.last_ns:
-            self.position = np.zeros(2)  # time went back: a simulation reset put the robot at the origin
-        self.last_ns = now_ns
-        return est
-
-    def odometry(self, joints: JointState, imu: Imu, est: Estimate) -> Odometry:
-        """/odom for the step of ``joints`` and ``imu`` with its estimate ``est``."""
-        gyro = imu.angular_velocity
-        odom = Odometry()
-        odom.header.stamp = joints.header.stamp
-        odom.header.frame_id = ODOM_FRAME
-        odom.child_frame_id = BASE_FRAME
-        pose = odom.pose.pose
-        pose.position.x, pose.position.y = float(self.position[0]), float(self.position[1])
-        pose.position.z = float(est.height) if est.height is not None else 0.0
-        pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (
-            float(v) for v in est.orientation)
-        twist = odom.twist.twist
-        twist.linear.x, twist.linear.y, twist.linear.z = (float(v) for v in est.velocity_body)
-        twist.angular.x, twist.angular.y, twist.angular.z = gyro.x, gyro.y, gyro.z
-        cov = np.zeros((6, 6))
-        cov[:3, :3] = est.covariance_body
-        cov[3:, 3:] = np.eye(3) * GYRO_VARIANCE
-        odom.twist.covariance = cov.ravel().tolist()
-        pose_cov = np.full(6, -1.0)  # unknown pose covariance (dead reckoning), per REP-145 style
-        odom.pose.covariance = np.diag(pose_cov).ravel().tolist()
-        return odom
 
 
 class OdomTransformPublisher:
