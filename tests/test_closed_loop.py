@@ -21,9 +21,9 @@ from convex_mpc_node.controller import (
     VelocityCommand,
     controller_config_from_parameters,
     load_controller_config,
-    swing_curve,
 )
 from convex_mpc_node.gait import gait_for_speed, load_hand_tuned_gaits
+from convex_mpc_node.swing import swing_curve
 from gait_policy_node.rollout import ClosedLoop, ramp_profile, run_closed_loop, run_with_late_commands
 
 GAITS = load_hand_tuned_gaits()

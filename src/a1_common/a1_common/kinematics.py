@@ -14,6 +14,8 @@ and the signed hip link length s = +-0.08505 m (+ for left legs):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from a1_common.robot import LEG_SIGNS, NUM_LEGS, A1Constants
@@ -105,3 +107,17 @@ def heading_frame(orientation: np.ndarray) -> np.ndarray:
     yaw = np.arctan2(rot[1, 0], rot[0, 0])
     c, s = np.cos(yaw), np.sin(yaw)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def yaw_aligned_frame(rot: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, float, float]:
+    """The yaw-aligned frame of a base orientation ``rot`` (base -> world): (yaw [rad], its rotation
+    yaw-aligned -> world, the rotation base -> yaw-aligned, roll [rad], pitch [rad]). The frame the
+    convex MPC plans in (world axes turned by the base yaw, z up)."""
+    yaw = math.atan2(rot[1, 0], rot[0, 0])
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    rot_yaw = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    rot_rp = rot_yaw.T @ rot
+    roll = math.atan2(rot_rp[2, 1], rot_rp[2, 2])
+    pitch = -math.asin(min(max(rot_rp[2, 0], -1.0), 1.0))
+    return yaw, rot_yaw, rot_rp, roll, pitch
+

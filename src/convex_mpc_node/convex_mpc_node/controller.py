@@ -28,12 +28,13 @@ from a1_common.config import (
     require_range,
     setting,
 )
-from a1_common.kinematics import foot_positions, inverse_kinematics, leg_kinematics, quat_to_matrix
-from a1_common.robot import LEG_SIGNS, NUM_LEGS, A1Constants, a1
+from a1_common.kinematics import leg_kinematics, quat_to_matrix, yaw_aligned_frame
+from a1_common.robot import A1Constants, a1
 
 from convex_mpc_node.gait import LEG_SWING, GaitParams, PhaseIntegrator
-from convex_mpc_node.mpc import ConvexMpc, MpcCommand, MpcConfig, MpcSolution, MpcState
-from convex_mpc_node.mpc_worker import MpcWorkerProcess
+from convex_mpc_node.mpc import MpcCommand, MpcConfig, MpcState
+from convex_mpc_node.stance import DriftCorrection, StanceController
+from convex_mpc_node.swing import SwingController
 
 # [s] the most the gait clock catches up in one step: a longer gap (a stall past the bridges'
 # 50 ms watchdog, which has damped the motors meanwhile) is not walked through in one jump.
@@ -168,63 +169,48 @@ class VelocityCommand:
     yaw_rate: float = 0.0
 
 
-def swing_curve(p0: np.ndarray, p_air: np.ndarray, p_land: np.ndarray, s: float | np.ndarray) -> np.ndarray:
-    """Quadratic through lift-off (s=0), mid-air (s=0.5) and landing (s=1) points (paper app. A)."""
-    return 2 * (s - 0.5) * (s - 1) * p0 - 4 * s * (s - 1) * p_air + 2 * s * (s - 0.5) * p_land
-
-
 class LocomotionController:
-    """Turns a velocity command and the robot's state into joint commands, every 2 ms."""
+    """Turns a velocity command and the robot's state into joint commands, every 2 ms: the phase
+    integrator (gait.py) says which legs stand and swing, StanceController (stance.py) gives the
+    stance legs' torques from the convex MPC, SwingController (swing.py) the swing legs' joint
+    targets; this class reads the state once per step in the frames they use and composes them."""
 
     def __init__(self, gait: GaitParams, config: ControllerConfig | None = None,
                  robot: A1Constants | None = None) -> None:
         self.robot = robot or a1()
         self.config = (config or load_controller_config()).validated()
-        self.gait = PhaseIntegrator(gait)
-        self.mpc = ConvexMpc(self.config.mpc)
-        # Swing geometry that depends on the configuration only, per leg, base frame [m]: the
-        # neutral foothold (under the hip, zero abduction), the mid-air point above it, and the
-        # hip's velocity per unit yaw rate (z x r) [m/rad].
         cfg = self.config
-        ground_z = -cfg.body_height + cfg.com_offset[2] + self.robot.foot_radius  # toe centre on the ground
-        neutral = self.robot.hip_offsets.copy()
-        neutral[:, 1] += LEG_SIGNS * self.robot.hip_link_length
-        neutral[:, 2] = ground_z
-        self._neutral = neutral
-        self._mid_air = neutral + np.array([0.0, 0.0, cfg.swing_apex_height])
-        self._yaw_tangent = np.column_stack([-neutral[:, 1], neutral[:, 0]])
-        self._raibert_clip = np.asarray(cfg.raibert_clip)
-        self.mpc_fallbacks = 0
-        self.qp_failure_steps = 0  # fault injection: the MPC fails for this many more steps
-        self._worker = MpcWorkerProcess(self.config.mpc) if self.config.mpc_async else None
+        self.gait = PhaseIntegrator(gait)
+        self.stance = StanceController(cfg.mpc, cfg.mpc_period_steps, cfg.mpc_async)
+        self.mpc = self.stance.mpc
+        self.swing = SwingController(self.robot, self.gait, body_height=cfg.body_height,
+                                     com_offset_z=cfg.com_offset[2], swing_apex_height=cfg.swing_apex_height,
+                                     raibert_feedback_gain=cfg.raibert_feedback_gain, raibert_clip=cfg.raibert_clip)
+        self.drift = DriftCorrection(cfg.max_position_error, cfg.max_yaw_error)
+        self.nan_commands = 0  # steps whose command had a NaN/inf: the joints were held instead
         self.reset()
+
+    # What the node and the tests read of the stance controller.
+    mpc_fallbacks = property(lambda self: self.stance.fallbacks + self.nan_commands)
+    last_solution = property(lambda self: self.stance.last_solution)
+    solved_this_step = property(lambda self: self.stance.solved_this_step)
+    stopgap_steps = property(lambda self: self.stance.stopgap_steps)
+    plan_delay_steps = property(lambda self: self.stance.plan_delay_steps)
 
     def close(self) -> None:
         """Stop the MPC worker process, if any (it also exits on its own when this process dies)."""
-        if self._worker is not None:
-            self._worker.close()
-            self._worker = None
+        self.stance.close()
 
     def inject_qp_failures(self, steps: int) -> None:
         """Fault injection: the MPC fails for the next ``steps`` control steps (each step takes a
         solver failure's fallback, whatever ``mpc_period_steps`` and ``mpc_async`` are)."""
-        self.qp_failure_steps = require_integer("inject_qp_failures", steps, 0, 1_000_000)
+        self.stance.inject_failures(steps)
 
     def reset(self) -> None:
-        if self._worker is not None:
-            self._worker.wait()  # a solve still running belongs to the state before the reset
+        self.stance.reset()
         self.gait.reset()
-        self.last_solution: MpcSolution | None = None
-        self.solved_this_step = False  # False: the last step reused the previous MPC forces
-        self._steps_since_solve = 0
-        self._solved_contacts = np.zeros(NUM_LEGS, dtype=bool)  # of the newest problem handed to a solver
-        self._plan_contacts = np.zeros(NUM_LEGS, dtype=bool)  # ... and of last_solution
-        self.stopgap_steps = 0  # steps that applied static forces while a solve for new contacts ran
-        self.plan_delay_steps = 0  # control steps from handing the adopted solve to a solver to adopting it
-        self._position_error = np.zeros(2)  # yaw-aligned frame [m]
-        self._yaw_target: float | None = None
-        self._was_swing = np.zeros(NUM_LEGS, dtype=bool)
-        self._liftoff = foot_positions(self.robot, self.robot.nominal_joint_angles)
+        self.drift.reset()
+        self.swing.reset()
 
     def set_gait(self, params: GaitParams) -> None:
         self.gait.set_params(params)
@@ -245,119 +231,47 @@ class LocomotionController:
             catch_up = min(elapsed, MAX_CATCH_UP) - dt
             self.gait.step(catch_up)
             dt += catch_up
+        # The state, once, in the frames the parts use.
         q_measured = np.asarray(obs.joint_position, dtype=float)
         q = q_measured + cfg.latency_compensation * np.asarray(obs.joint_velocity, dtype=float)
         rot = quat_to_matrix(np.asarray(obs.orientation, dtype=float))  # base -> world
-        yaw = math.atan2(rot[1, 0], rot[0, 0])
-        cy, sy = math.cos(yaw), math.sin(yaw)
-        rot_yaw = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-        rot_rp = rot_yaw.T @ rot  # base -> yaw-aligned frame
-        roll = math.atan2(rot_rp[2, 1], rot_rp[2, 2])
-        pitch = -math.asin(min(max(rot_rp[2, 0], -1.0), 1.0))
-
+        yaw, rot_yaw, rot_rp, roll, pitch = yaw_aligned_frame(rot)
         feet_base, jac = leg_kinematics(robot, q)
         feet_yaw = (rot_rp @ (feet_base - np.asarray(cfg.com_offset)).T).T
-        contact = np.asarray(obs.foot_contact, dtype=bool)
-        states = self.gait.leg_states(contact)
+        states = self.gait.leg_states(np.asarray(obs.foot_contact, dtype=bool))
         stance = states != LEG_SWING
-        touching = stance & contact
+        touching = stance & np.asarray(obs.foot_contact, dtype=bool)
         # COM height above the ground under the feet in contact (toe centre + toe radius).
         n_touching = int(np.count_nonzero(touching))
         height = (robot.foot_radius - float(feet_yaw[touching, 2].sum()) / n_touching if n_touching
                   else cfg.body_height)
         v_yaw = rot_yaw.T @ np.asarray(obs.base_velocity, dtype=float)
         w_yaw = rot_rp @ np.asarray(obs.angular_velocity, dtype=float)
-
         v_cmd = np.array([command.vx, command.vy])
-        # np.minimum/np.maximum, not np.clip: on arrays this small np.clip costs several times more.
-        self._position_error = np.minimum(np.maximum(self._position_error + (v_cmd - v_yaw[:2]) * dt,
-                                                     -cfg.max_position_error), cfg.max_position_error)
-        if self._yaw_target is None:
-            self._yaw_target = yaw
-        yaw_error = (self._yaw_target - yaw + np.pi) % (2 * np.pi) - np.pi
-        yaw_error = min(max(float(yaw_error), -cfg.max_yaw_error), cfg.max_yaw_error)
-        self._yaw_target = yaw + yaw_error + command.yaw_rate * dt
 
-        mpc_cfg = cfg.mpc
-        plan = self.gait.contact_schedule(mpc_cfg.horizon, mpc_cfg.step, leg_states=states)
-        self.solved_this_step = False
-        worker = self._worker
-        finished = worker.poll() if worker is not None else None
-        if finished is not None:
-            self._adopt(finished, self._solved_contacts, self._steps_since_solve + 1)  # submitted that long ago
-        due = (self.last_solution is None or self._steps_since_solve + 1 >= cfg.mpc_period_steps
-               or not np.array_equal(plan[0], self._solved_contacts))
-        if self.qp_failure_steps > 0:  # fault injection: this step's solve "fails"
-            self.qp_failure_steps -= 1
-            self._adopt(self.mpc.fallback(plan[0], "injected failure"), plan[0], 0)
-            self._steps_since_solve = cfg.mpc_period_steps  # a real solve is due right after
-            self._solved_contacts = plan[0].copy()
-        elif due and not (worker is not None and worker.pending):
-            problem = (MpcState(roll, pitch, height, w_yaw, v_yaw, feet_yaw),
-                       MpcCommand(v_cmd, command.yaw_rate, cfg.body_height, self._position_error, yaw_error), plan)
-            if worker is not None and self.last_solution is not None:  # the first solve: in this process
-                worker.submit(*problem)
-            else:
-                self._adopt(self.mpc.solve(*problem), plan[0], 0)
-            self._steps_since_solve = 0
-            self._solved_contacts = plan[0].copy()
-        else:
-            self._steps_since_solve += 1
-        forces = self.last_solution.forces  # yaw-aligned frame [N]
-        if not np.array_equal(self._plan_contacts, stance):
-            # Only while a worker solves for a new contact set (a touchdown or a lift-off): the plan
-            # in hand gives a foot that just landed no force, so the weight shared by the feet in
-            # contact bridges those few ms instead of letting the body drop.
-            forces = self.mpc.static_forces(stance)
-            self.stopgap_steps += 1
-
+        # Stance: the MPC's forces for the contact plan, as torques.
+        self.drift.update(v_cmd, v_yaw, yaw, command.yaw_rate, dt)
+        plan = self.gait.contact_schedule(cfg.mpc.horizon, cfg.mpc.step, leg_states=states)
+        self.stance.update(MpcState(roll, pitch, height, w_yaw, v_yaw, feet_yaw),
+                           MpcCommand(v_cmd, command.yaw_rate, cfg.body_height, self.drift.position_error,
+                                      self.drift.yaw_error), plan, stance)
         out = JointCommand()
-        # Stance: the foot pushes on the ground with -f; torques = J^T (that force in the base frame),
-        # as rows: (J^T f)^T = f^T J, all legs at once.
-        foot_force_base = -forces @ rot_rp
-        torques = np.matmul(foot_force_base[:, None, :], jac)[:, 0, :]
-        torques[~stance] = 0.0
-        out.torque = torques.reshape(-1)
+        out.torque = self.stance.get_action(rot_rp, jac, stance).reshape(-1)
 
+        # Swing: the swing legs' feet along their curves, through the joints' PD.
         swing = ~stance
-        desired_swing = ~self.gait.desired_contact
-        starting = desired_swing & ~self._was_swing
-        self._liftoff[starting] = feet_base[starting]
-        self._was_swing = desired_swing
+        self.swing.update(feet_base)
         if swing.any():
-            targets = feet_base.copy()
             v_base = rot.T @ np.asarray(obs.base_velocity, dtype=float)
-            targets[swing] = self._swing_targets(swing, v_base, float(obs.angular_velocity[2]), v_cmd,
-                                                 command.yaw_rate)
+            positions = self.swing.get_action(swing, feet_base, v_base, float(obs.angular_velocity[2]), v_cmd,
+                                              command.yaw_rate)
             joints = np.repeat(swing, 3)
-            out.position[joints] = inverse_kinematics(robot, targets)[joints]
+            out.position[joints] = positions[joints]
             out.kp[joints] = robot.joint_kp[joints]
             out.kd[joints] = robot.joint_kd[joints]
         out.torque = np.minimum(np.maximum(out.torque, -robot.motor_torque_limit), robot.motor_torque_limit)
         self.gait.step(cfg.control_period)
         if not np.isfinite(out.position.sum() + out.torque.sum()):  # a NaN/inf anywhere spoils the sum
-            self.mpc_fallbacks += 1
+            self.nan_commands += 1
             return JointCommand.hold(robot, q_measured if np.all(np.isfinite(q_measured)) else None)
         return out
-
-    def _adopt(self, solution: MpcSolution, contacts: np.ndarray, delay_steps: int) -> None:
-        self.last_solution = solution
-        self._plan_contacts = contacts.copy()
-        self.plan_delay_steps = delay_steps
-        self.mpc_fallbacks += solution.fallback
-        self.solved_this_step = True
-
-    def _swing_targets(self, legs: np.ndarray, v_base: np.ndarray, yaw_rate: float, v_cmd: np.ndarray,
-                       yaw_rate_cmd: float) -> np.ndarray:
-        """Foot targets (n, 3), base frame, of the ``legs`` (mask) along the lift-off -> mid-air ->
-        Raibert landing curve; ``v_cmd`` [m/s] and ``yaw_rate_cmd`` [rad/s] are the command."""
-        cfg = self.config
-        tangent = self._yaw_tangent[legs]
-        hip_velocity = v_base[:2] + yaw_rate * tangent
-        desired = v_cmd + yaw_rate_cmd * tangent
-        offset = hip_velocity * (0.5 * self.gait.stance_duration) + cfg.raibert_feedback_gain * (hip_velocity - desired)
-        clip = self._raibert_clip
-        landing = self._neutral[legs]  # a copy (boolean indexing)
-        landing[:, :2] += np.minimum(np.maximum(offset, -clip), clip)
-        progress = self.gait.normalised_phase()[legs][:, None]
-        return swing_curve(self._liftoff[legs], self._mid_air[legs], landing, progress)
