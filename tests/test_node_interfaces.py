@@ -258,6 +258,26 @@ def test_runtime_set_read_only_refused_range_refused_runtime_applied(rclpy_conte
         node.destroy_node()
 
 
+def test_a_batch_with_one_bad_value_changes_nothing(rclpy_context):
+    """Validated in on_set, applied in post_set: ``set_parameters_atomically`` (the service behind a
+    parameter file loaded at runtime) with a bad second value leaves the first unapplied."""
+    from convex_mpc_node.node import ConvexMpcNode
+
+    node = ConvexMpcNode(context=rclpy_context)
+    try:
+        result = node.set_parameters_atomically([Parameter("mode", value="stand"),
+                                                 Parameter("inject_qp_failures", value=2.5)])
+        assert not result.successful and "inject_qp_failures must be an integer" in result.reason
+        assert node.supervisor.requested.value == "walk" and node.get_parameter("mode").value == "walk"
+        assert node.controller.stance.qp_failure_steps == 0
+        assert node.set_parameters_atomically([Parameter("mode", value="stand"),
+                                               Parameter("inject_qp_failures", value=3)]).successful
+        assert node.supervisor.requested.value == "stand" and node.controller.stance.qp_failure_steps == 3
+    finally:
+        node.shutdown()
+        node.destroy_node()
+
+
 def test_ros2_param_describe_over_the_parameter_service(rclpy_context):
     """What ``ros2 param describe /convex_mpc mode body_height`` asks: the describe service."""
     from convex_mpc_node.node import ConvexMpcNode

@@ -32,6 +32,7 @@ from a1_common.config import (
     parameter_defaults,
     parameter_descriptions,
     recording_constraints,
+    require_choice,
     require_integer,
     setting,
 )
@@ -67,7 +68,8 @@ from convex_mpc_node.controller import (
 )
 from convex_mpc_node.energy import cost_of_transport, motor_power
 from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
-from convex_mpc_node.supervisor import ControllerSupervisor, SupervisorConfig
+from convex_mpc_node.stance import MAX_INJECTED_FAILURES
+from convex_mpc_node.supervisor import ControllerSupervisor, Mode, SupervisorConfig
 from gait_msgs.msg import FootContacts, GaitState, MotorCommand
 from gait_msgs.msg import GaitParams as GaitParamsMsg
 
@@ -163,7 +165,8 @@ class ConvexMpcNode(Node):
         self.create_subscription(Bool, contract.ESTOP, self._on_estop, ESTOP_QOS)
         self.create_service(Trigger, "~/clear_estop", self._on_clear_estop)
         constrain_parameters(self, params, constraints, runtime=RUNTIME_PARAMETERS)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(1.0, self._publish_diagnostics)
 
     def shutdown(self) -> None:
@@ -206,17 +209,27 @@ class ConvexMpcNode(Node):
         response.success, response.message = True, "e-stop and fall cleared; standing up"
         return response
 
-    def _on_set_parameters(self, params) -> SetParametersResult:
-        """Runtime changes (the others are read-only descriptors, refused by rclpy)."""
+    def _validate_parameters(self, params) -> SetParametersResult:
+        """on_set: check each runtime change of the batch (the other parameters are read-only
+        descriptors, refused by rclpy). Nothing is applied here, so a batch with one bad value
+        changes nothing."""
         for param in params:
             try:
                 if param.name == "mode":
-                    self.supervisor.set_mode(coerce_parameter("mode", param.value, ""))
+                    require_choice("mode", coerce_parameter("mode", param.value, ""), [m.value for m in Mode])
                 elif param.name == "inject_qp_failures":
-                    self._inject_qp_failures(coerce_parameter(param.name, param.value, 0))
+                    require_integer(param.name, coerce_parameter(param.name, param.value, 0), 0, MAX_INJECTED_FAILURES)
             except ConfigError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, params) -> None:
+        """post_set: apply the batch rclpy has accepted."""
+        for param in params:
+            if param.name == "mode":
+                self.supervisor.set_mode(param.value)
+            elif param.name == "inject_qp_failures":
+                self._inject_qp_failures(param.value)
 
     def _inject_qp_failures(self, count: int) -> None:
         """Fault injection: the MPC fails for the next ``count`` control steps (its fallback takes over)."""

@@ -22,6 +22,8 @@ from a1_common.robot import NUM_LEGS
 from convex_mpc_node.mpc import ConvexMpc, MpcCommand, MpcConfig, MpcSolution, MpcState
 from convex_mpc_node.mpc_worker import MpcWorkerProcess
 
+MAX_INJECTED_FAILURES = 1_000_000  # control steps of injected MPC failures at most (fault injection)
+
 
 class DriftCorrection:
     """The integrated tracking errors the MPC steers out: position [m] (yaw-aligned x, y, clamped to
@@ -69,7 +71,7 @@ class StanceController:
 
     def inject_failures(self, steps: int) -> None:
         """Fault injection: the next ``steps`` control steps each take a solver failure's fallback."""
-        self.qp_failure_steps = require_integer("inject_qp_failures", steps, 0, 1_000_000)
+        self.qp_failure_steps = require_integer("inject_qp_failures", steps, 0, MAX_INJECTED_FAILURES)
 
     def reset(self) -> None:
         if self._worker is not None:
