@@ -24,6 +24,8 @@ from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import GaitParams
 from state_estimator_node.estimator import EstimatorConfig, SensorSample, VelocityEstimator
 
+from gait_policy_node.train_config import VELOCITY_SOURCES
+
 POLICY_PERIOD = 0.05  # [s]: gait parameters change at 20 Hz
 FALL_TILT = np.radians(30.0)  # a fall: body tilted more than this ...
 
@@ -81,9 +83,6 @@ def tilted_or_low(position: np.ndarray, orientation: np.ndarray) -> bool:
     x, y = orientation[0], orientation[1]
     up_z = 1 - 2 * (x * x + y * y)  # world z of the body z axis
     return bool(up_z < np.cos(FALL_TILT) or position[2] < FALL_HEIGHT)
-
-
-VELOCITY_SOURCES = ("estimator", "ground_truth")
 
 
 class ClosedLoop:
