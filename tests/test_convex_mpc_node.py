@@ -1,5 +1,6 @@
-"""The convex_mpc node's step triggering, in process: one command per sensor step whatever arrives
-late, twice or not at all, and the estimator failover (backup estimate only after a first /odom)."""
+"""The convex_mpc node's step triggering (convex_mpc_node.step_trigger), without ROS and in the node:
+one command per sensor step whatever arrives late, twice or not at all, and the estimator failover
+(backup estimate only after a first /odom)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import numpy as np
 import pytest
 from a1_sim_bridge.sim import A1Sim, SimConfig
 from convex_mpc_node.node import ConvexMpcNode
+from convex_mpc_node.step_trigger import StepTrigger
 from nav_msgs.msg import Odometry
 from state_estimator_node.estimator import EstimatorConfig
 from state_estimator_node.frontend import OdometryFrontend
@@ -38,8 +40,8 @@ def node(rclpy_context):
 def sensors(node: ConvexMpcNode, readings, k: int) -> None:
     r, names = readings
     stamp = cv.stamp_from_ns(k * STEP_NS)
-    node._on_sensor(node._imu, cv.imu_msg(r, stamp))
-    node._on_sensor(node._contacts, cv.foot_contacts_msg(r, stamp))
+    node.trigger.on_imu(cv.imu_msg(r, stamp))
+    node.trigger.on_contacts(cv.foot_contacts_msg(r, stamp))
     node._on_joints(cv.joint_state_msg(r, stamp, names))
 
 
@@ -49,6 +51,39 @@ def odom(node: ConvexMpcNode, k: int, vx: float = 0.0) -> None:
     msg.pose.pose.orientation.w = 1.0
     msg.twist.twist.linear.x = vx
     node._on_odom(msg)
+
+
+def test_the_trigger_alone_steps_once_per_step_goes_stale_answers_a_repeat_and_restarts(readings):
+    """No rclpy: messages in, callbacks out."""
+    r, names = readings
+    calls = []
+    trigger = StepTrigger(input_timeout=0.03, frontend=None, backup=None, estimate_after_command=False,
+                          control=lambda stamp, s, v, b: calls.append(("control", stamp, v is None)),
+                          republish=lambda: calls.append(("again",)), on_estimate=lambda s, e: None,
+                          on_restart=lambda: calls.append(("restart",)), log=lambda *a: None)
+
+    def step(k: int, with_odom: bool) -> None:
+        stamp = cv.stamp_from_ns(k * STEP_NS)
+        trigger.on_imu(cv.imu_msg(r, stamp))
+        trigger.on_contacts(cv.foot_contacts_msg(r, stamp))
+        trigger.on_joints(cv.joint_state_msg(r, stamp, names))
+        if with_odom:
+            trigger.on_odom(k * STEP_NS, np.zeros(3))
+
+    for k in range(3):
+        step(k, with_odom=True)
+    assert calls == [("control", k * STEP_NS, False) for k in range(3)]
+    trigger.on_joints(cv.joint_state_msg(r, cv.stamp_from_ns(2 * STEP_NS), names))  # step 2 again
+    assert calls[-1] == ("again",)
+    calls.clear()
+    for k in range(3, 80):  # no /odom: from input_timeout on, the sensors alone, with no velocity
+        step(k, with_odom=False)
+    first = calls[0][1]  # the first step over input_timeout after the last /odom (step 2)
+    assert (first - 2 * STEP_NS) * 1e-9 > 0.03 >= (first - 3 * STEP_NS) * 1e-9 and all(c[2] for c in calls)
+    assert [c[1] for c in calls] == list(range(first, 80 * STEP_NS, STEP_NS))
+    calls.clear()
+    step(0, with_odom=True)  # time jumped back by 158 ms: a simulation reset
+    assert calls == [("restart",), ("control", 0, False)]
 
 
 @pytest.mark.ros
@@ -62,16 +97,16 @@ def test_one_command_per_step_with_odom_late_or_twice(node, readings):
     for k in range(20, 60):
         sensors(node, readings, k)
     assert node.sent[-1] == 59 * STEP_NS and len(node.sent) == len(set(node.sent))
-    assert node._on_backup
+    assert node.trigger.on_backup
     # /odom for a step the sensors already triggered commands nothing more, but says the estimator
     # is back: the next step waits for its /odom again and the backup stands down.
     sensors(node, readings, 60)
     odom(node, 60)
-    assert node.sent.count(60 * STEP_NS) == 1 and node._on_backup
+    assert node.sent.count(60 * STEP_NS) == 1 and node.trigger.on_backup
     sensors(node, readings, 61)
     assert node.sent[-1] == 60 * STEP_NS  # waiting for /odom of step 61
     odom(node, 61)
-    assert node.sent[-1] == 61 * STEP_NS and not node._on_backup
+    assert node.sent[-1] == 61 * STEP_NS and not node.trigger.on_backup
 
 
 @pytest.mark.ros
@@ -80,11 +115,11 @@ def test_sensors_in_any_order_trigger_a_stale_step_once(node, readings):
     for k in range(100, 105):  # past input_timeout: at start-up the estimator gets 30 ms to answer
         stamp = cv.stamp_from_ns(k * STEP_NS)
         node._on_joints(cv.joint_state_msg(r, stamp, names))  # joints first this time
-        node._on_sensor(node._imu, cv.imu_msg(r, stamp))
-        node._on_sensor(node._contacts, cv.foot_contacts_msg(r, stamp))
-        node._on_sensor(node._contacts, cv.foot_contacts_msg(r, stamp))  # and one twice
+        node.trigger.on_imu(cv.imu_msg(r, stamp))
+        node.trigger.on_contacts(cv.foot_contacts_msg(r, stamp))
+        node.trigger.on_contacts(cv.foot_contacts_msg(r, stamp))  # and one twice
     assert node.sent == [k * STEP_NS for k in range(100, 105)]
-    assert not node._on_backup  # no /odom yet: nothing to start a backup estimate from
+    assert not node.trigger.on_backup  # no /odom yet: nothing to start a backup estimate from
 
 
 @pytest.mark.ros
@@ -153,8 +188,9 @@ def test_estimate_after_command_controls_on_the_previous_estimate_then_updates(r
     n.pub_command.publish = lambda msg: events.append(("command", wire.decode_motor_command(msg)[1]))
     n.pub_odom.publish = lambda msg: events.append(("odom", cv.ns_from_stamp(msg.header.stamp)))
     velocities = []
-    control = n._control
-    n._control = lambda stamp_ns, velocity, *a: (velocities.append(velocity), control(stamp_ns, velocity, *a))
+    control = n.trigger._control
+    n.trigger._control = lambda stamp_ns, step_sensors, velocity, *a: (
+        velocities.append(velocity), control(stamp_ns, step_sensors, velocity, *a))
     update = n.frontend.update
     estimates = []
     n.frontend.update = lambda *m: estimates.append(update(*m)) or estimates[-1]

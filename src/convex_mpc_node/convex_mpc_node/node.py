@@ -51,7 +51,7 @@ from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from sensor_msgs.msg import Imu, JointState
+from sensor_msgs.msg import JointState
 from state_estimator_node.estimator import load_estimator_config
 from state_estimator_node.frontend import OdometryFrontend
 from state_estimator_node.node import OdomTransformPublisher
@@ -69,6 +69,7 @@ from convex_mpc_node.controller import (
 from convex_mpc_node.energy import cost_of_transport, motor_power
 from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
 from convex_mpc_node.stance import MAX_INJECTED_FAILURES
+from convex_mpc_node.step_trigger import StepTrigger
 from convex_mpc_node.supervisor import ControllerSupervisor, Mode, SupervisorConfig
 from gait_msgs.msg import FootContacts, GaitState, MotorCommand
 from gait_msgs.msg import GaitParams as GaitParamsMsg
@@ -90,8 +91,6 @@ class NodeParameters:
 
 NODE_PARAMETERS = parameter_defaults(NodeParameters())
 RUNTIME_PARAMETERS = ("mode", "inject_qp_failures")
-BACKUP_HOLD = 0.02  # [s] the backup estimate outlives refused sensor samples this long
-SIM_RESET_JUMP_NS = 100_000_000  # sensor time jumping back by more than this [ns] is a simulation reset
 
 
 
@@ -116,10 +115,6 @@ class ConvexMpcNode(Node):
             self._inject_qp_failures(params["inject_qp_failures"])
         self.mass = float(params["mass_for_cot"])
         self.period = controller_config.control_period
-        self._joints: dict[int, JointState] = {}
-        self._imu: dict[int, Imu] = {}
-        self._contacts: dict[int, FootContacts] = {}
-        self._odom_ns = -1
         self._last_sensor_wall = float("-inf")
         self._solve_times: deque[float] = deque(maxlen=500)
         self._plan_delays: deque[float] = deque(maxlen=500)  # [s] solve hand-over to adoption, whole steps
@@ -130,19 +125,17 @@ class ConvexMpcNode(Node):
         self._steps = 0
         self._state = "waiting"
         self.frontend = OdometryFrontend(load_estimator_config()) if params["embedded_estimator"] else None
-        # Embedded, realtime: control on the estimate of the step before (2 ms old) and update the
-        # filter after the motor command is out, so the estimator is off the sensor-to-command path.
-        self.estimate_after_command = bool(params["estimate_after_command"]) and self.frontend is not None
-        self._previous_velocity: np.ndarray | None = None  # world frame [m/s], that estimate
         # Failover: with /odom stale, the estimator core here, started from the last /odom velocity,
         # carries the robot through a controlled stop (supervisor "stopping") before the safe stance.
-        self.backup = (OdometryFrontend(load_estimator_config())
-                       if params["estimator_failover"] and self.frontend is None else None)
-        self._odom_velocity = np.zeros(3)  # world frame [m/s], the last /odom's
-        self._on_backup = False
-        self._backup_sample: tuple[int, np.ndarray] | None = None  # (stamp, velocity) of its last estimate
-        self._controlled_ns = -1  # the last step a command was sent for
-        self._last_command: bytes | None = None  # ... and that command (CDR, see a1_interface.wire)
+        backup = (OdometryFrontend(load_estimator_config())
+                  if params["estimator_failover"] and self.frontend is None else None)
+        # Embedded, realtime (estimate_after_command): control on the estimate of the step before
+        # (2 ms old) and update the filter after the motor command is out, off the command's path.
+        self.trigger = StepTrigger(
+            input_timeout=supervisor_config.input_timeout, frontend=self.frontend, backup=backup,
+            estimate_after_command=bool(params["estimate_after_command"]), control=self._control,
+            republish=self._republish, on_estimate=self._on_estimate, on_restart=self._on_sim_reset, log=self._log)
+        self._last_command: bytes | None = None  # the last step's command (CDR, see a1_interface.wire)
         self._command_encoder = wire.MotorCommandEncoder()
 
         self.pub_command = self.create_publisher(MotorCommand, contract.MOTOR_COMMAND, CONTROL_QOS)
@@ -154,9 +147,8 @@ class ConvexMpcNode(Node):
             self.create_subscription(Twist, contract.CMD_VEL, self._on_cmd_vel, COMMAND_QOS)
         self.create_subscription(GaitParamsMsg, contract.GAIT_PARAMS, self._on_gait_params, COMMAND_QOS)
         # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_interface.wire).
-        wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints,
-                               on_imu=lambda m: self._on_sensor(self._imu, m),
-                               on_contacts=lambda m: self._on_sensor(self._contacts, m))
+        wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints, on_imu=self.trigger.on_imu,
+                               on_contacts=self.trigger.on_contacts)
         if self.frontend is None:
             self.create_subscription(Odometry, contract.ODOM, self._on_odom, CONTROL_QOS)
         else:
@@ -174,19 +166,7 @@ class ConvexMpcNode(Node):
 
     # --- inputs --------------------------------------------------------------------------------
     def _now(self) -> float:
-        return self._latest_stamp_ns() * 1e-9
-
-    def _latest_stamp_ns(self) -> int:
-        return max(self._joints) if self._joints else 0
-
-    @staticmethod
-    def _store(buffer: dict, msg) -> None:
-        stamp_ns = ns_from_stamp(msg.header.stamp)
-        if buffer and stamp_ns < next(reversed(buffer)) - SIM_RESET_JUMP_NS:  # the last one stored
-            buffer.clear()  # a sim reset: the old run's steps would evict the new run's (smaller) stamps
-        buffer[stamp_ns] = msg
-        while len(buffer) > 50:  # keep the last 0.1 s of sensor steps
-            del buffer[min(buffer)]
+        return self.trigger.latest_stamp_ns() * 1e-9
 
     def _on_cmd_vel(self, twist: Twist) -> None:
         if not self.supervisor.on_cmd_vel(twist.linear.x, twist.linear.y, twist.angular.z, self._now()):
@@ -237,121 +217,50 @@ class ConvexMpcNode(Node):
         if count:
             self.get_logger().warning(f"fault injection: the MPC fails for the next {count} control steps")
 
-    def _on_sensor(self, buffer: dict, msg) -> None:
-        self._store(buffer, msg)
-        stamp_ns = ns_from_stamp(msg.header.stamp)
-        if self.frontend is not None:
-            self._estimate_and_control(stamp_ns)
-        else:
-            self._step_if_odom_stale(stamp_ns)
-
     def _on_joints(self, msg: JointState) -> None:
-        self._store(self._joints, msg)
         self._last_sensor_wall = time.monotonic()
-        stamp_ns = ns_from_stamp(msg.header.stamp)
-        if stamp_ns == self._controlled_ns and self._last_command is not None:
-            # The step again: a lockstep bridge offers it again while no command reached it (the
-            # first one can be lost before DDS has matched the bridge), or a duplicate. Answer with
-            # the command already computed: the controller must not step twice.
-            self.pub_command.publish(self._last_command)
-            return
-        if self.frontend is not None:
-            self._estimate_and_control(stamp_ns)
-        else:
-            self._step_if_odom_stale(stamp_ns)
-
-    def _step_if_odom_stale(self, stamp_ns: int) -> None:
-        """No fresh /odom for this step: control it once its sensors are in, on the backup estimate
-        (controlled stop) or on the sensors alone (safe stance)."""
-        if self._is_new_step(stamp_ns) and (stamp_ns - self._odom_ns) * 1e-9 > self.supervisor.config.input_timeout:
-            self._control(stamp_ns, None, self._backup_velocity(stamp_ns))
-
-    def _is_new_step(self, stamp_ns: int) -> bool:
-        """``stamp_ns`` was not controlled yet. Time jumping back over SIM_RESET_JUMP_NS is a sim reset:
-        start over, standing up first."""
-        if stamp_ns < self._controlled_ns - SIM_RESET_JUMP_NS:
-            self.get_logger().warning(f"sensor time jumped back from {self._controlled_ns * 1e-9:.3f} s to "
-                                      f"{stamp_ns * 1e-9:.3f} s: simulation reset; standing up again")
-            self._controlled_ns = self._odom_ns = -1
-            self._backup_sample, self._last_command, self._on_backup = None, None, False
-            self.supervisor.restart()
-        return stamp_ns > self._controlled_ns
-
-    def _step_sensors(self, stamp_ns: int) -> tuple[JointState, Imu, FootContacts] | None:
-        """This step's joint state, IMU and contacts, or None while one of them is not in."""
-        joints, imu, contacts = self._joints.get(stamp_ns), self._imu.get(stamp_ns), self._contacts.get(stamp_ns)
-        return None if joints is None or imu is None or contacts is None else (joints, imu, contacts)
-
-    def _backup_velocity(self, stamp_ns: int) -> np.ndarray | None:
-        """World-frame velocity from the backup estimator for a stale-/odom step, or None (no backup,
-        no /odom yet to start it from, or its sensors refused for longer than BACKUP_HOLD)."""
-        sensors = self._step_sensors(stamp_ns)
-        if self.backup is None or self._odom_ns < 0 or sensors is None:
-            return None
-        if not self._on_backup:
-            self.get_logger().error("/odom stale: stopping on the backup estimate, then a safe stance")
-            self.backup.estimator.reset(self._odom_velocity)
-            self._on_backup = True
-            self._backup_sample = None
-        estimate = self.backup.update(*sensors)
-        if estimate is not None:
-            self._backup_sample = (stamp_ns, estimate.velocity_world)
-        elif self._backup_sample is None or (stamp_ns - self._backup_sample[0]) * 1e-9 > BACKUP_HOLD:
-            return None  # one refused sample must not end the stop: the last estimate holds briefly
-        return self._backup_sample[1]
+        self.trigger.on_joints(msg)
 
     def _on_odom(self, msg: Odometry) -> None:
-        stamp_ns = ns_from_stamp(msg.header.stamp)
-        velocity = self._velocity_from_odom(msg)
-        if not self._is_new_step(stamp_ns):  # late (its step went the stale way) or duplicated
-            if stamp_ns > self._odom_ns:  # the estimator is alive: the next step waits for its /odom
-                self._odom_ns, self._odom_velocity = stamp_ns, velocity
-            return
-        self._odom_ns, self._odom_velocity = stamp_ns, velocity
-        if self._on_backup:
-            self.get_logger().info("/odom is back")
-            self._on_backup = False
-        self._control(stamp_ns, velocity)
-
-    @staticmethod
-    def _velocity_from_odom(msg: Odometry) -> np.ndarray:
-        """/odom's twist is in base_link: rotated to the world frame [m/s]."""
+        """/odom's twist is in base_link: rotated to the world frame [m/s] for the trigger."""
         q, tw = msg.pose.pose.orientation, msg.twist.twist.linear
-        return quat_to_matrix(np.array([q.x, q.y, q.z, q.w])) @ np.array([tw.x, tw.y, tw.z])
+        velocity = quat_to_matrix(np.array([q.x, q.y, q.z, q.w])) @ np.array([tw.x, tw.y, tw.z])
+        self.trigger.on_odom(ns_from_stamp(msg.header.stamp), velocity)
 
-    def _estimate_and_control(self, stamp_ns: int) -> None:
-        """Embedded estimator: once this step's joints, IMU and contacts are all in, update the filter,
-        control and publish /odom; a refused sample leaves the step (with ``estimate_after_command``:
-        the next one) to the safe-stance path."""
-        sensors = self._step_sensors(stamp_ns)
-        if sensors is None or not self._is_new_step(stamp_ns):
-            return
-        if self.estimate_after_command:
-            self._control(stamp_ns, self._previous_velocity)
-        estimate = self.frontend.update(*sensors)
-        self._previous_velocity = None if estimate is None else estimate.velocity_world
-        if estimate is None:
-            self.get_logger().warning("embedded estimator refused a sensor step (skew, joint names or NaN/inf)",
-                                      throttle_duration_sec=1.0)
-        else:
-            self._odom_ns = stamp_ns
-        if not self.estimate_after_command:
-            self._control(stamp_ns, self._previous_velocity)
-        if estimate is not None and self._steps % self.odom_every == 0:  # after the command: off its path
+    # --- what the step trigger calls back ------------------------------------------------------
+    def _republish(self) -> None:
+        if self._last_command is not None:
+            self.pub_command.publish(self._last_command)
+
+    def _on_estimate(self, sensors: tuple, estimate) -> None:
+        """Embedded estimator: /odom and /tf, every odom_every_steps control steps."""
+        if self._steps % self.odom_every == 0:
             odom = self.frontend.odometry(sensors[0], sensors[1], estimate)
             self.pub_odom.publish(odom)
             self.tf.publish(odom)
 
+    def _on_sim_reset(self) -> None:
+        self._last_command = None
+        self.supervisor.restart()
+
+    def _log(self, level: str, text: str, throttle: bool) -> None:
+        """One call site per severity (and for the throttled one): rclpy's logger requires it."""
+        logger = self.get_logger()
+        if level == "error":
+            logger.error(text)
+        elif level == "info":
+            logger.info(text)
+        elif throttle:
+            logger.warning(text, throttle_duration_sec=1.0)
+        else:
+            logger.warning(text)
+
     # --- the control step ----------------------------------------------------------------------
-    def _control(self, stamp_ns: int, velocity_world: np.ndarray | None,
-                 backup_velocity: np.ndarray | None = None) -> None:
+    def _control(self, stamp_ns: int, sensors: tuple, velocity_world: np.ndarray | None,
+                 backup_velocity: np.ndarray | None) -> None:
         """One control step for the sensors stamped ``stamp_ns``; no velocity: the backup estimate's
         controlled stop if there is one, else the safe-stance path."""
-        sensors = self._step_sensors(stamp_ns)
-        if sensors is None:
-            return  # this step's sensors are not all in (yet)
         joints, imu, contacts = sensors
-        self._controlled_ns = stamp_ns  # one command per step, whatever path and however often called
         t0 = time.perf_counter()
         o, w = imu.orientation, imu.angular_velocity
         velocity = next((v for v in (velocity_world, backup_velocity) if v is not None), np.zeros(3))
