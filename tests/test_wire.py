@@ -10,8 +10,8 @@ from a1_interface.sensors import SensorReadings
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Imu, JointState
 
+from a1_interface import contract, wire
 from a1_interface import conversions as cv
-from a1_interface import wire
 from gait_msgs.msg import FootContacts, MotorCommand
 
 NAMES = [f"{leg}_{joint}_joint" for leg in ("FR", "FL", "RR", "RL") for joint in ("hip", "thigh", "calf")]
@@ -114,9 +114,9 @@ class _FakeNode:
 def test_sensor_subscriptions_decode_and_drop_malformed_messages_loudly(readings: SensorReadings) -> None:
     node, got = _FakeNode(), []
     wire.subscribe_sensors(node, None, on_joints=got.append, on_imu=got.append, on_contacts=got.append)
-    assert list(node.callbacks) == ["/imu/data", "/foot_contacts", "/joint_states"]  # joint states last
+    assert list(node.callbacks) == [contract.IMU, contract.FOOT_CONTACTS, contract.JOINT_STATES]  # joints last
     imu = serialize_message(cv.imu_msg(readings, cv.stamp_from_ns(STAMP_NS)))
-    node.callbacks["/imu/data"](imu[:30])
+    node.callbacks[contract.IMU](imu[:30])
     assert got == [] and len(node.errors) == 1 and "sensor_msgs/Imu: truncated" in node.errors[0]
-    node.callbacks["/imu/data"](imu)
+    node.callbacks[contract.IMU](imu)
     assert len(got) == 1 and got[0].header.stamp == cv.stamp_from_ns(STAMP_NS)
