@@ -197,6 +197,7 @@ def require_numbers(name: str, values: Any, count: int, low: float, high: float,
         raise ConfigError(f"{name} must have {count} entries, got {len(values)}")
     return tuple(require_range(f"{name}[{i}]", v, low, high, low_open=low_open) for i, v in enumerate(values))
 
+
 def require_choice(name: str, value: Any, choices: Collection[str]) -> str:
     """Return ``value`` if it is one of ``choices``, else raise naming the field and the choices."""
     _record(name, Constraint(choices=tuple(choices)))

@@ -120,4 +120,3 @@ def yaw_aligned_frame(rot: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, f
     roll = math.atan2(rot_rp[2, 1], rot_rp[2, 2])
     pitch = -math.asin(min(max(rot_rp[2, 0], -1.0), 1.0))
     return yaw, rot_yaw, rot_rp, roll, pitch
-

@@ -25,7 +25,7 @@ from rclpy.executors import ExternalShutdownException, ShutdownException, Single
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.subscription import Subscription
 
-from a1_common.config import ConfigError, Constraint
+from a1_common.config import ConfigError, Constraint, parameter_defaults, parameter_descriptions
 
 WAITABLES_PERIOD = 0.1  # [s] see DirectExecutor.spin_direct_once
 # Parameters rclpy itself understands; any other override the node did not declare is a typo.
@@ -58,6 +58,21 @@ def declare_parameters(node, defaults: dict[str, Any], descriptions: Mapping[str
     return values
 
 
+def declare_settings(node, *configs: Any) -> dict[str, Any]:
+    """:func:`declare_parameters` for the fields of config dataclass instances (defaults and
+    descriptions from a1_common.config.setting); a name in two of them is an error."""
+    defaults: dict[str, Any] = {}
+    descriptions: dict[str, str] = {}
+    for config in configs:
+        fields = parameter_defaults(config)
+        twice = sorted(set(fields) & set(defaults))
+        if twice:
+            raise ValueError(f"node {node.get_name()}: parameters {twice} in two configs")
+        defaults.update(fields)
+        descriptions.update(parameter_descriptions(config))
+    return declare_parameters(node, defaults, descriptions)
+
+
 def constrain_parameters(node, names: Collection[str], constraints: Mapping[str, Constraint],
                          runtime: Collection[str] = ()) -> None:
     """Complete the descriptors of the parameters ``names`` (declared, values validated): the range
@@ -75,12 +90,10 @@ def constrain_parameters(node, names: Collection[str], constraints: Mapping[str,
         if name == "use_sim_time":
             descriptor.description = "take time from /clock (graphs under a sim bridge) instead of the system clock"
         constraint = constraints.get(name)
-        notes = []
-        if constraint is not None:
-            notes.append(str(constraint))
-            if constraint.choices or constraint.count is not None:
-                pass  # a string or a list: described in words only (ROS ranges are for one number)
-            elif constraint.integer:
+        notes = [str(constraint)] if constraint is not None else []
+        # A string or a list is described in words only: ROS ranges are for one number.
+        if constraint is not None and not constraint.choices and constraint.count is None:
+            if constraint.integer:
                 descriptor.integer_range = [IntegerRange(from_value=int(constraint.low),
                                                          to_value=int(constraint.high), step=1)]
             else:

@@ -9,8 +9,8 @@ bridge, encoded by a1_interface.wire) and /diagnostics; subscribes /motor_comman
 from __future__ import annotations
 
 import numpy as np
-from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints
-from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
+from a1_common.config import recording_constraints
+from a1_common.node_support import constrain_parameters, declare_settings, diagnostic_array, run_node
 from a1_common.robot import a1
 from a1_interface.contract import BASE_FRAME, CONTROL_QOS, IMU_FRAME, LATCHED_QOS
 from a1_interface.sensors import SensorReadings
@@ -33,9 +33,8 @@ class HardwareBridgeNode(Node):
     def __init__(self, **node_kwargs) -> None:
         """``node_kwargs`` go to rclpy's Node (tests pass ``context`` and ``parameter_overrides``)."""
         super().__init__("hw_bridge", **node_kwargs)
-        defaults = BridgeConfig()
         with recording_constraints() as constraints:
-            params = declare_parameters(self, parameter_defaults(defaults), parameter_descriptions(defaults))
+            params = declare_settings(self, BridgeConfig())
             config = BridgeConfig(**params).validated()
         constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.joint_names = list(a1().joint_names)

@@ -11,8 +11,8 @@ import threading
 import traceback
 from dataclasses import dataclass
 
-from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, setting
-from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
+from a1_common.config import parameter_defaults, recording_constraints, setting
+from a1_common.node_support import constrain_parameters, declare_settings, diagnostic_array, run_node
 from a1_interface.contract import CONTROL_QOS
 from a1_sim_bridge.sim import SensorNoise, SimConfig
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -36,11 +36,8 @@ class VirtualA1Node(Node):
         super().__init__("virtual_a1", **node_kwargs)
         robot_defaults = parameter_defaults(VirtualA1Config())
         sim_defaults = {**parameter_defaults(SimConfig()), **parameter_defaults(SensorNoise())}
-        configs = (VirtualA1Config(), SimConfig(), SensorNoise(), NodeParameters())
-        defaults = {k: v for c in configs for k, v in parameter_defaults(c).items()}
-        descriptions = {k: v for c in configs for k, v in parameter_descriptions(c).items()}
         with recording_constraints() as constraints:
-            params = declare_parameters(self, defaults, descriptions)
+            params = declare_settings(self, VirtualA1Config(), SimConfig(), SensorNoise(), NodeParameters())
             config = VirtualA1Config(**{k: params[k] for k in robot_defaults}).validated()
             sim_config = SimConfig.from_parameters({k: params[k] for k in sim_defaults})
             self.robot = VirtualA1(config, sim_config)

@@ -36,11 +36,16 @@ FIELDS = {
 }
 
 
+def require_seconds(seconds: float) -> float:
+    """``seconds`` of window if in (0, 600], else ConfigError naming flight_recorder_seconds."""
+    return require_range("flight_recorder_seconds", seconds, 0.0, 600.0, low_open=True)
+
+
 class FlightRecorder:
     """Ring buffer of the last ``seconds`` of steps; ``record`` one step, ``save`` the window."""
 
     def __init__(self, seconds: float, time_step: float) -> None:
-        require_range("flight_recorder_seconds", seconds, 0.0, 600.0, low_open=True)
+        require_seconds(seconds)
         self.capacity = max(1, math.ceil(seconds / time_step))
         self._columns = {}
         start = 0

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from a1_common.command import JointCommand
-from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
-from a1_common.node_support import constrain_parameters, declare_parameters, run_node
+from a1_common.config import recording_constraints, require_range, setting
+from a1_common.node_support import constrain_parameters, declare_settings, run_node
 from a1_common.robot import a1
 from a1_interface.contract import CONTROL_QOS
 from a1_interface.conversions import motor_command_msg, ns_from_stamp
@@ -36,7 +36,7 @@ class JointHoldNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("joint_hold", **node_kwargs)
         with recording_constraints() as constraints:
-            params = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            params = declare_settings(self, PARAMETERS)
             self.ramp_time = require_range("ramp_time", params["ramp_time"], 0.0, 10.0)  # [s]
         constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.robot = a1()

@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
-from a1_common.node_support import constrain_parameters, declare_parameters, run_node
+from a1_common.config import recording_constraints, require_range, setting
+from a1_common.node_support import constrain_parameters, declare_settings, run_node
 from a1_interface.contract import CONTROL_QOS
 from a1_interface.conversions import ns_from_stamp
 from nav_msgs.msg import Odometry
@@ -43,7 +43,7 @@ class MonitorNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("robot_state_monitor", **node_kwargs)
         with recording_constraints() as constraints:
-            params = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            params = declare_settings(self, PARAMETERS)
             self.period = require_range("print_period", params["print_period"], 0.0, 3600.0, low_open=True)
             self.duration = require_range("duration", params["duration"], 0.0, 1e6)
         constrain_parameters(self, params, constraints)  # all read-only: read at start-up

@@ -33,7 +33,6 @@ from a1_common.command import CommandWatchdog, MotorMode
 from a1_common.config import (
     ConfigError,
     parameter_defaults,
-    parameter_descriptions,
     recording_constraints,
     require_choice,
     require_range,
@@ -42,7 +41,7 @@ from a1_common.config import (
 from a1_common.node_support import (
     coerce_parameter,
     constrain_parameters,
-    declare_parameters,
+    declare_settings,
     diagnostic_array,
     run_node,
 )
@@ -60,8 +59,8 @@ from std_srvs.srv import SetBool, Trigger
 from a1_interface import contract, wire
 from a1_interface import conversions as cv
 from a1_sim_bridge.description import robot_description
-from a1_sim_bridge.flight_recorder import FlightRecorder
-from a1_sim_bridge.sim import A1Sim, SimConfig
+from a1_sim_bridge.flight_recorder import FlightRecorder, require_seconds
+from a1_sim_bridge.sim import A1Sim, SensorNoise, SimConfig
 from gait_msgs.msg import FootContacts, MotorCommand
 
 CLOCK_MODES = ("lockstep", "realtime")
@@ -91,9 +90,8 @@ class SimBridgeNode(Node):
     def __init__(self, **node_kwargs) -> None:
         """``node_kwargs`` go to rclpy's Node (tests pass ``context`` and ``parameter_overrides``)."""
         super().__init__("sim_bridge", **node_kwargs)
-        descriptions = {**_sim_descriptions(SimConfig()), **parameter_descriptions(NodeParameters())}
         with recording_constraints() as constraints:
-            params = declare_parameters(self, {**_sim_defaults(SimConfig()), **NODE_PARAMETERS}, descriptions)
+            params = declare_settings(self, SimConfig(), SensorNoise(), NodeParameters())
             self.clock_mode = require_choice("clock_mode", params["clock_mode"], CLOCK_MODES)
             self.sim = A1Sim(SimConfig.from_parameters(params, ignore=tuple(NODE_PARAMETERS)))
             self.watchdog = CommandWatchdog(params["command_timeout"])
@@ -106,8 +104,9 @@ class SimBridgeNode(Node):
             self.publish_ground_truth = bool(params["publish_ground_truth"])
             # Flight recorder (off with no directory): the last seconds before a fall, as an .npz.
             self.recorder_dir = str(params["flight_recorder_dir"])
-            recorder = FlightRecorder(params["flight_recorder_seconds"], self.sim.config.time_step)
-            self.recorder = recorder if self.recorder_dir else None
+            recorder_seconds = require_seconds(params["flight_recorder_seconds"])  # checked even while off
+            self.recorder = (FlightRecorder(recorder_seconds, self.sim.config.time_step)
+                             if self.recorder_dir else None)
             self.fall_height = require_range("fall_height", params["fall_height"], 0.0, 1.0)
         constrain_parameters(self, params, constraints, runtime=RUNTIME_PARAMETERS)
         self._recorded_stamp_ns = -1
@@ -403,16 +402,6 @@ class SimBridgeNode(Node):
             self.get_logger().error("simulation thread did not stop within 2 s; leaving PyBullet open")
         else:
             self.sim.close()
-
-
-def _sim_defaults(config: SimConfig) -> dict:
-    """SimConfig as the flat parameter mapping the node declares (noise fields inlined)."""
-    return {**parameter_defaults(config), **parameter_defaults(config.noise)}
-
-
-def _sim_descriptions(config: SimConfig) -> dict:
-    """The descriptions of :func:`_sim_defaults`, by parameter name."""
-    return {**parameter_descriptions(config), **parameter_descriptions(config.noise)}
 
 
 def main(args: list[str] | None = None) -> None:

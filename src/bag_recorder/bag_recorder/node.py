@@ -20,13 +20,11 @@ from dataclasses import dataclass
 
 from a1_common.config import (
     ConfigError,
-    parameter_defaults,
-    parameter_descriptions,
     recording_constraints,
     require_range,
     setting,
 )
-from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
+from a1_common.node_support import constrain_parameters, declare_settings, diagnostic_array, run_node
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -55,7 +53,7 @@ class RecorderNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("bag_recorder", **node_kwargs)
         with recording_constraints() as constraints:
-            p = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            p = declare_settings(self, PARAMETERS)
             period = require_range("discovery_period", p["discovery_period"], 0.05, 60.0)
         constrain_parameters(self, p, constraints)  # all read-only: read at start-up
         self.bag = BagWriter(p["output"] or time.strftime("bag_%Y%m%d_%H%M%S"))

@@ -238,9 +238,10 @@ class LocomotionController:
         yaw, rot_yaw, rot_rp, roll, pitch = yaw_aligned_frame(rot)
         feet_base, jac = leg_kinematics(robot, q)
         feet_yaw = (rot_rp @ (feet_base - np.asarray(cfg.com_offset)).T).T
-        states = self.gait.leg_states(np.asarray(obs.foot_contact, dtype=bool))
+        contact = np.asarray(obs.foot_contact, dtype=bool)
+        states = self.gait.leg_states(contact)
         stance = states != LEG_SWING
-        touching = stance & np.asarray(obs.foot_contact, dtype=bool)
+        touching = stance & contact
         # COM height above the ground under the feet in contact (toe centre + toe radius).
         n_touching = int(np.count_nonzero(touching))
         height = (robot.foot_radius - float(feet_yaw[touching, 2].sum()) / n_touching if n_touching

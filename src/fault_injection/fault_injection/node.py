@@ -13,8 +13,8 @@ import importlib
 import time
 from dataclasses import dataclass
 
-from a1_common.config import ConfigError, parameter_defaults, parameter_descriptions, recording_constraints, setting
-from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
+from a1_common.config import ConfigError, parameter_defaults, recording_constraints, setting
+from a1_common.node_support import constrain_parameters, declare_settings, diagnostic_array, run_node
 from a1_interface.contract import CONTROL_QOS
 from a1_interface.conversions import ns_from_stamp
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -55,10 +55,8 @@ class FaultRelayNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("fault_relay", **node_kwargs)
         fault_defaults = parameter_defaults(FaultConfig())
-        descriptions = {**parameter_descriptions(FaultConfig()), **parameter_descriptions(NodeParameters())}
         with recording_constraints() as constraints:
-            params = declare_parameters(self, {**fault_defaults, **parameter_defaults(NodeParameters())},
-                                        descriptions)
+            params = declare_settings(self, FaultConfig(), NodeParameters())
             topic = params["topic"]
             if not topic.startswith("/"):
                 raise ConfigError(f"topic must be an absolute topic name like /imu/data, got {topic!r}")

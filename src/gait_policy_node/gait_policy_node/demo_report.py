@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
-from a1_common.node_support import constrain_parameters, declare_parameters, run_node
+from a1_common.config import recording_constraints, require_range, setting
+from a1_common.node_support import constrain_parameters, declare_settings, run_node
 from a1_common.robot import FALL_HEIGHT
 from a1_interface.contract import COMMAND_QOS, CONTROL_QOS
 from a1_interface.conversions import ns_from_stamp
@@ -51,7 +51,7 @@ class DemoReportNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("demo_report", **node_kwargs)
         with recording_constraints() as constraints:
-            p = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            p = declare_settings(self, PARAMETERS)
             self.duration = require_range("duration", p["duration"], 0.1, 3600.0)
             self.output = Path(p["output"])
             self.mass = require_range("mass", p["mass"], 1.0, 100.0)

@@ -24,14 +24,12 @@ from dataclasses import dataclass
 import numpy as np
 from a1_common.config import (
     ConfigError,
-    parameter_defaults,
-    parameter_descriptions,
     recording_constraints,
     require_range,
     setting,
 )
 from a1_common.kinematics import heading_frame, quat_to_matrix
-from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
+from a1_common.node_support import constrain_parameters, declare_settings, diagnostic_array, run_node
 from a1_interface.contract import COMMAND_QOS, CONTROL_QOS
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped
@@ -61,7 +59,7 @@ class GaitPolicyNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("gait_policy", **node_kwargs)
         with recording_constraints() as constraints:
-            params = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            params = declare_settings(self, PARAMETERS)
             rate = require_range("rate", params["rate"], 1.0, 500.0)
             self.policy = make_policy(params["policy"])
         constrain_parameters(self, params, constraints)  # all read-only: read at start-up

@@ -224,8 +224,9 @@ def main(argv: list[str] | None = None) -> int:
     speeds = sorted({r["target_speed"] for r in best})
     cell = {(r["name"], r["target_speed"]): r for r in best}
     timing = "best frequency [Hz] / swing ratio" if args.swing_ratios else "best frequency [Hz]"
+    width = 20 if args.swing_ratios else 14  # of a table column
     print(f"cost of transport ({timing} in brackets); {time.monotonic() - start:.0f} s")
-    print(f"{'':<12}" + "".join(f"{s:>{20 if args.swing_ratios else 14}.1f}" for s in speeds))
+    print(f"{'':<12}" + "".join(f"{s:>{width}.1f}" for s in speeds))
     for n in names:
         line = f"{n:<12}"
         for s in speeds:
@@ -233,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
             text = "fell" if r is None or r["fell"] else f"{r['cost_of_transport']:.2f}" + (
                 f" [{r['frequency']:.1f}" + (f"/{r['swing_ratio']:.2f}" if args.swing_ratios else "") + "]"
                 if not np.isnan(r["frequency"]) else "")
-            line += f"{text:>{20 if args.swing_ratios else 14}}"
+            line += f"{text:>{width}}"
         print(line)
     policies = [Path(p).stem for p in args.policy]
     for r in compare_with_hand_tuned(best, args.gaits, policies):

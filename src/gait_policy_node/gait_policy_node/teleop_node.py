@@ -18,8 +18,8 @@ import termios
 import tty
 from dataclasses import dataclass
 
-from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints, require_range, setting
-from a1_common.node_support import constrain_parameters, declare_parameters, run_node
+from a1_common.config import recording_constraints, require_range, setting
+from a1_common.node_support import constrain_parameters, declare_settings, run_node
 from a1_interface.contract import COMMAND_QOS
 from geometry_msgs.msg import Twist
 from rclpy.duration import Duration
@@ -46,7 +46,7 @@ class TeleopNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("teleop_keyboard", **node_kwargs)
         with recording_constraints() as constraints:
-            p = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            p = declare_settings(self, PARAMETERS)
             rate = require_range("rate", p["rate"], 1.0, 100.0)
             self.teleop = Teleop(steps=(p["forward_step"], p["lateral_step"], p["yaw_step"]))
         constrain_parameters(self, p, constraints)  # all read-only: read at start-up

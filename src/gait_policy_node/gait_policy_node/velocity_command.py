@@ -17,14 +17,12 @@ from dataclasses import dataclass
 
 from a1_common.config import (
     ConfigError,
-    parameter_defaults,
-    parameter_descriptions,
     recording_constraints,
     require_choice,
     require_range,
     setting,
 )
-from a1_common.node_support import constrain_parameters, declare_parameters, run_node
+from a1_common.node_support import constrain_parameters, declare_settings, run_node
 from a1_interface.contract import COMMAND_QOS
 from geometry_msgs.msg import Twist
 from rclpy.node import Node
@@ -74,7 +72,7 @@ class VelocityCommandNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("velocity_command", **node_kwargs)
         with recording_constraints() as constraints:
-            p = declare_parameters(self, parameter_defaults(PARAMETERS), parameter_descriptions(PARAMETERS))
+            p = declare_settings(self, PARAMETERS)
             self.profile = require_choice("profile", p["profile"], PROFILES)
             self.speed = require_range("speed", p["speed"], -MAX_SPEED, MAX_SPEED)
             self.lateral = require_range("lateral", p["lateral"], -1.0, 1.0)

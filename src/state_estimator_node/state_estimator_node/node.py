@@ -12,8 +12,8 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from a1_common.config import parameter_defaults, parameter_descriptions, recording_constraints
-from a1_common.node_support import constrain_parameters, declare_parameters, diagnostic_array, run_node
+from a1_common.config import recording_constraints
+from a1_common.node_support import constrain_parameters, declare_settings, diagnostic_array, run_node
 from a1_interface.contract import CONTROL_QOS, TF_QOS
 from a1_interface.conversions import ns_from_stamp
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -64,8 +64,7 @@ class StateEstimatorNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("state_estimator", **node_kwargs)
         with recording_constraints() as constraints:
-            params = declare_parameters(self, parameter_defaults(EstimatorConfig()),
-                                        parameter_descriptions(EstimatorConfig()))
+            params = declare_settings(self, EstimatorConfig())
             self.frontend = OdometryFrontend(estimator_config_from_parameters(params))
         constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.estimator = self.frontend.estimator
