@@ -340,6 +340,14 @@ def test_estimator_killed_stops_then_safe_stance_then_recovers(scenario):
     assert recovery <= 4.5, f"did not walk again: {recovery}"
 
 
+def policy_since(probe: Probe) -> float | None:
+    """Sim time from which /gait/state has shown the fly trot's swing ratio (0.6) without a break."""
+    since = None
+    for t, ratio in probe.swing_ratio:
+        since = (since if since is not None else t) if ratio == pytest.approx(0.6) else None
+    return since
+
+
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize("clock", CLOCKS)
@@ -351,6 +359,10 @@ def test_policy_killed_keeps_last_gait_then_hand_tuned(scenario, clock):
     graph, probe, executor = make(gait=True)
     start(graph, clock, *EMBEDDED, policy_params=("policy:=fly_trot",))
     run_until(executor, probe, graph, FAULT_AT)
+    # The sim does not wait for the policy node: on a loaded machine its first gait can come after
+    # the stand-up. Kill it only once its gait has been in effect for the 0.5 s the check looks back.
+    assert spin_until(executor, lambda: (since := policy_since(probe)) is not None and probe.sim_time() >= since + 0.5,
+                      60.0), f"the policy's gait (swing ratio 0.6) was not in effect 0.5 s by {probe.sim_time():.2f} s"
     graph.kill("gait_policy")
     killed_at = probe.sim_time()
     run_until(executor, probe, graph, killed_at + 2.5)
