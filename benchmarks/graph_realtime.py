@@ -1,28 +1,36 @@
 """Benchmark the whole node graph in realtime mode: control rate, missed deadlines, latency.
 
-Starts sim_bridge (realtime), convex_mpc (with config/convex_mpc_realtime.yaml: the estimator
-embedded, the MPC asynchronous) and gait_policy as processes, commands 1.0 m/s, and reads the sim
-bridge's own counts from /diagnostics for ``--seconds`` of wall time (this probe subscribes to
-nothing else, so it takes no CPU from the graph it measures):
+Starts the realtime graph (config/convex_mpc_realtime.yaml: the estimator embedded, the MPC
+asynchronous) in the form asked: ``composed`` (the 500 Hz chain, sim bridge and controller, as one
+control_chain process: what scripts/bringup.sh starts in realtime), ``separate`` (one process a
+node) or ``both`` (one after the other, side by side in one table: the machine's noise hits both).
+It ramps the command as the demo does (0 -> ``--top-speed`` at ``--acceleration``, then held) and
+reads the sim bridge's own counts from /diagnostics for ``--seconds`` of wall time (this probe
+subscribes to nothing else, so it takes no CPU from the graph it measures):
 - control rate: /motor_command messages the bridge accepted per second (goal 500 Hz);
 - missed deadlines: share of the bridge's 2 ms steps applied with no new command since the step
   before (the robot then gets the previous command again);
+- longest command gap: the longest time between two steps with a new command (2 ms: none missed);
 - sensor-to-command latency: wall time from the bridge publishing step k's sensors to it receiving
   the command stamped k; the median of the per-second medians, and the worst per-second p99;
 - the bridge's achieved step rate, and whether the robot stayed up (lowest base height);
-- each node's CPU use over the window, in cores, its worker processes included (from /proc: where
-  the 2 cores go).
-Goal of issue 6: 500 Hz held with under 1% missed deadlines for 60 s. Prints one line a second
-(the bridge's misses and watchdog dampings in that second, the controller's state, step and QP
-medians, MPC worker round trip and stopgap steps), a table, then JSON.
+- each process's CPU use over the window, in cores, its worker processes included (from /proc:
+  where the 2 cores go).
+``--joiners N`` starts and stops a separate subscriber process on /joint_states N times during the
+window (a user's ``ros2 topic echo``: a new DDS participant joining and leaving the graph).
+Goals (issue 26): under 1 % missed deadlines and latency p99 under 1.5 ms for 60 s at full speed,
+no command gap over 20 ms while subscribers come and go, no fall. Prints one line a second (the
+bridge's misses, longest gap and watchdog dampings in that second, the controller's state, step and
+QP medians, MPC plan delay and stopgap steps), a table, then JSON.
 
 Scheduling experiments, without editing code (docs/architecture.md, "Realtime on a small computer"):
-- ``--fifo sim_bridge=50`` (repeatable; ``probe`` is this process) puts a node at SCHED_FIFO right
-  after it starts, before it creates its DDS threads, so all its threads inherit the priority;
+- ``--fifo sim_bridge=50`` (repeatable; ``control_chain`` is the composed process, ``probe`` this
+  one) puts a process at SCHED_FIFO right after it starts, before it creates its DDS threads, so all
+  its threads inherit the priority;
 - ``--dds-transports UDPv4`` sets Fast DDS's FASTDDS_BUILTIN_TRANSPORTS for every process (the
   default uses shared memory between processes on one machine).
 
-Usage: source scripts/env.sh && python benchmarks/graph_realtime.py [--seconds 60]
+Usage: source scripts/env.sh && python benchmarks/graph_realtime.py [--seconds 60] [--form both] [--joiners 10]
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ import argparse
 import json
 import os
 import signal
+import subprocess
 import sys
 import tempfile
 import time
@@ -42,25 +51,35 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 from graph_helpers import Graph, add_scheduling_options, apply_fifo, cpu_seconds, scheduling_from_args  # noqa: E402
 
+FORMS = ("composed", "separate")
+JOINER = """
+import sys, time, rclpy
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+rclpy.init()
+node = Node("echo_joiner")
+node.create_subscription(JointState, "/joint_states", lambda m: None, 10)
+end = time.monotonic() + float(sys.argv[1])
+while time.monotonic() < end:
+    rclpy.spin_once(node, timeout_sec=0.05)
+"""
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=60.0, help="measurement window, wall time [s]")
-    parser.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE",
-                        help="extra convex_mpc parameter, e.g. embedded_estimator:=true (repeatable)")
-    add_scheduling_options(parser)
-    args = parser.parse_args()
-    if not 5.0 <= args.seconds <= 3600.0:
-        parser.error("--seconds must be in [5, 3600]")
-    fifo = scheduling_from_args(parser, args)
-    os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
+
+def command_speed(t: float, top_speed: float, acceleration: float) -> float:
+    """The demo's profile: from 0 at ``acceleration`` [m/s^2] to ``top_speed`` [m/s], then held."""
+    return min(top_speed, acceleration * t)
+
+
+def measure(form: str, args: argparse.Namespace, fifo: dict[str, int]) -> dict:
+    """One realtime graph in ``form``, measured over ``args.seconds``; its figures."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Twist
     from rclpy.node import Node
 
-    graph = Graph(Path(tempfile.mkdtemp(prefix="graph_realtime_")))
-    graph.start_stack("realtime", 0.5, *args.controller_param, real_time_factor=args.real_time_factor)
+    graph = Graph(Path(tempfile.mkdtemp(prefix=f"graph_realtime_{form}_")))
+    graph.start_stack("realtime", 0.5, *args.controller_param, real_time_factor=args.real_time_factor,
+                      composed_chain=form == "composed")
     apply_fifo(graph, fifo)
     rclpy.init(args=[])  # not sys.argv: --controller-param values are no ROS arguments
     node = Node("realtime_probe")
@@ -78,19 +97,21 @@ def main() -> None:
                     steps = int(values["steps"]) - int(reports[-1]["steps"])
                     missed = int(values["uncommanded_steps"]) - int(reports[-1]["uncommanded_steps"])
                     damped = int(values["damping_fallbacks"]) - int(reports[-1]["damping_fallbacks"])
-                    print(f"t={time.monotonic() - started:5.1f} s  missed {100 * missed / max(steps, 1):5.1f} %  "
-                          f"watchdog damped {damped}x  lowest base {values['lowest_base_height_m']} m  controller "
-                          f"{controller.get('state', '?')}, step median {controller.get('step_median_ms', '?')} ms, "
-                          f"QP median {controller.get('qp_solve_median_ms', '?')} ms, plan delay "
+                    print(f"{form} t={time.monotonic() - started:5.1f} s  missed {100 * missed / max(steps, 1):5.1f} %"
+                          f"  gap {values['longest_command_gap_ms']:>3} ms  watchdog damped {damped}x  lowest base "
+                          f"{values['lowest_base_height_m']} m  controller {controller.get('state', '?')}, step "
+                          f"median {controller.get('step_median_ms', '?')} ms, QP median "
+                          f"{controller.get('qp_solve_median_ms', '?')} ms, plan delay "
                           f"{controller.get('mpc_plan_delay_median_ms', '?')} ms, stopgap steps "
-                          f"{controller.get('mpc_stopgap_steps', '?')}, "
-                          f"gait {controller.get('stepping_frequency_hz', '?')} Hz "
+                          f"{controller.get('mpc_stopgap_steps', '?')}, gait "
+                          f"{controller.get('stepping_frequency_hz', '?')} Hz "
                           f"swing {controller.get('swing_ratio', '?')}",
                           flush=True)
                 reports.append(values)
 
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
     cmd_pub = node.create_publisher(Twist, "/cmd_vel", 10)
+    joiners: list[subprocess.Popen] = []
     try:
         deadline = time.monotonic() + 60
         # Start-up, discovery, stand-up: until the bridge has been commanded for a whole second.
@@ -100,61 +121,106 @@ def main() -> None:
         first = len(reports)
         start = time.monotonic()
         cpu_start = {name: cpu_seconds(proc.pid) for name, proc in graph.procs.items()}
+        # Joiners: each lives 2 s, started evenly over the window after the ramp's first 2 s.
+        join_at = list(np.linspace(2.0, args.seconds - 3.0, args.joiners)) if args.joiners else []
         last_cmd = 0.0
         while time.monotonic() - start < args.seconds:
             rclpy.spin_once(node, timeout_sec=0.05)
-            if time.monotonic() - last_cmd > 0.1:
+            now = time.monotonic()
+            if now - last_cmd > 0.1:
                 msg = Twist()
-                msg.linear.x = 1.0
+                msg.linear.x = command_speed(now - start, args.top_speed, args.acceleration)
                 cmd_pub.publish(msg)
-                last_cmd = time.monotonic()
+                last_cmd = now
+            if join_at and now - start >= join_at[0]:
+                join_at.pop(0)
+                joiners.append(subprocess.Popen([sys.executable, "-c", JOINER, "2.0"], stdout=subprocess.DEVNULL,
+                                                stderr=subprocess.DEVNULL))
         window_reports = reports[first:]
         cpu = {name: (cpu_seconds(proc.pid) - cpu_start[name]) / (time.monotonic() - start)
                for name, proc in graph.procs.items()}
         alive = graph.alive()
     finally:
+        for proc in joiners:
+            proc.wait(timeout=30)
         node.destroy_node()
         rclpy.try_shutdown()  # SIGTERM may have shut the context down already
         graph.stop()
     if len(window_reports) < 2:
         sys.exit(f"too few /diagnostics from the sim bridge ({len(window_reports)}); logs in {graph.log_dir}")
+    if not all(alive.values()):
+        sys.exit(f"{form}: nodes died: {[k for k, v in alive.items() if not v]} (logs in {graph.log_dir})")
     a, b = window_reports[0], window_reports[-1]
     window = float(len(window_reports) - 1)  # the bridge reports once a second
     steps = int(b["steps"]) - int(a["steps"])
-    rate = (int(b["commands_accepted"]) - int(a["commands_accepted"])) / window
-    missed = (int(b["uncommanded_steps"]) - int(a["uncommanded_steps"])) / max(steps, 1)
     medians = [float(r["latency_median_ms"]) * 1e-3 for r in window_reports[1:] if r["latency_median_ms"] != "n/a"]
     p99s = [float(r["latency_p99_ms"]) * 1e-3 for r in window_reports[1:] if r["latency_p99_ms"] != "n/a"]
     heights = [float(r["lowest_base_height_m"]) for r in window_reports
                if r["lowest_base_height_m"] not in ("n/a", "inf")]
-    rows = [
-        ("window (bridge reports)", f"{window:.0f} s"),
-        ("bridge step rate", f"{steps / window:.1f} Hz"),
-        ("control rate (commands accepted)", f"{rate:.1f} Hz"),
-        ("missed deadlines", f"{100 * missed:.2f} %"),
-        ("sensor-to-command latency median", f"{np.median(medians) * 1e3:.2f} ms" if medians else "n/a"),
-        ("sensor-to-command latency p99 (worst 1 s)", f"{max(p99s) * 1e3:.2f} ms" if p99s else "n/a"),
-        ("lowest base height", f"{min(heights):.3f} m" if heights else "n/a"),
-        ("all nodes alive at the end", str(all(alive.values()))),
-        *((f"CPU of {name}", f"{share:.2f} cores") for name, share in cpu.items()),
-    ]
-    width = max(len(r[0]) for r in rows)
-    for name, value in rows:
-        print(f"{name:<{width}}  {value}")
-    records = graph.fall_records()
-    print(json.dumps({
-        "window_s": window, "bridge_step_rate_hz": steps / window, "control_rate_hz": rate,
-        "missed_deadline_fraction": missed,
+    return {
+        "form": form, "window_s": window, "bridge_step_rate_hz": steps / window,
+        "control_rate_hz": (int(b["commands_accepted"]) - int(a["commands_accepted"])) / window,
+        "missed_deadline_fraction": (int(b["uncommanded_steps"]) - int(a["uncommanded_steps"])) / max(steps, 1),
+        "longest_command_gap_s": max(float(r["longest_command_gap_ms"]) for r in window_reports[1:]) * 1e-3,
         "sensor_to_command_latency_median_s": float(np.median(medians)) if medians else None,
         "sensor_to_command_latency_p99_s": max(p99s) if p99s else None,
         "lowest_base_height_m": min(heights) if heights else None,
+        "joiners": args.joiners,
         **{f"cpu_{name}_cores": share for name, share in cpu.items()},
+        "fall_records": [str(p) for p in graph.fall_records()],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60.0, help="measurement window, wall time [s]")
+    parser.add_argument("--form", choices=(*FORMS, "both"), default="composed",
+                        help="composed (bring-up's realtime default), separate (a process a node), or both")
+    parser.add_argument("--top-speed", type=float, default=2.5, help="commanded speed held after the ramp [m/s]")
+    parser.add_argument("--acceleration", type=float, default=1.0, help="of the command's ramp [m/s^2]")
+    parser.add_argument("--joiners", type=int, default=0,
+                        help="start and stop a /joint_states subscriber process this many times in the window")
+    parser.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE",
+                        help="extra convex_mpc parameter, e.g. embedded_estimator:=true (repeatable)")
+    add_scheduling_options(parser)
+    args = parser.parse_args()
+    if not 5.0 <= args.seconds <= 3600.0:
+        parser.error("--seconds must be in [5, 3600]")
+    if not 0.0 <= args.top_speed <= 3.0:
+        parser.error(f"--top-speed must be in [0, 3] m/s, got {args.top_speed}")
+    if not 0.0 < args.acceleration <= 5.0:
+        parser.error(f"--acceleration must be in (0, 5] m/s^2, got {args.acceleration}")
+    if not 0 <= args.joiners <= max(0, int((args.seconds - 5.0) / 2.0)):
+        parser.error(f"--joiners must be in [0, (seconds - 5) / 2] = [0, {max(0, int((args.seconds - 5) / 2))}]")
+    fifo = scheduling_from_args(parser, args)
+    os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
+    results = [measure(form, args, fifo) for form in (FORMS if args.form == "both" else (args.form,))]
+
+    def row(label: str, key: str, fmt) -> tuple[str, ...]:
+        return (label, *(fmt(r[key]) if r.get(key) is not None else "n/a" for r in results))
+
+    rows = [
+        ("form", *(r["form"] for r in results)),
+        row("window (bridge reports)", "window_s", lambda v: f"{v:.0f} s"),
+        row("bridge step rate", "bridge_step_rate_hz", lambda v: f"{v:.1f} Hz"),
+        row("control rate (commands accepted)", "control_rate_hz", lambda v: f"{v:.1f} Hz"),
+        row("missed deadlines", "missed_deadline_fraction", lambda v: f"{100 * v:.2f} %"),
+        row("longest command gap", "longest_command_gap_s", lambda v: f"{v * 1e3:.0f} ms"),
+        row("sensor-to-command latency median", "sensor_to_command_latency_median_s", lambda v: f"{v * 1e3:.2f} ms"),
+        row("sensor-to-command latency p99 (worst 1 s)", "sensor_to_command_latency_p99_s",
+            lambda v: f"{v * 1e3:.2f} ms"),
+        row("lowest base height", "lowest_base_height_m", lambda v: f"{v:.3f} m"),
+        *(row(f"CPU of {key[4:-6]}", key, lambda v: f"{v:.2f} cores")
+          for key in dict.fromkeys(k for r in results for k in r if k.startswith("cpu_"))),
+    ]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    for r in rows:
+        print("  ".join(f"{cell:<{w}}" for cell, w in zip(r, widths, strict=True)))
+    print(json.dumps({
+        "forms": results, "top_speed_mps": args.top_speed, "acceleration_mps2": args.acceleration,
         "fifo_priorities": fifo, "dds_transports": args.dds_transports or "fastdds-default",
-        "real_time_factor": args.real_time_factor, "fall_records": [str(p) for p in records],
+        "real_time_factor": args.real_time_factor,
     }))
-    if not all(alive.values()):
-        print(f"nodes died: {[k for k, v in alive.items() if not v]} (logs in {graph.log_dir})", file=sys.stderr)
-        sys.exit(1)
 
 
 if __name__ == "__main__":

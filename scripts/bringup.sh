@@ -3,7 +3,8 @@
 #
 # Usage: scripts/bringup.sh [--world flat|step|rough|soft|slope] [--clock lockstep|realtime]
 #                           [--policy learned|scheduled|walk|slow_trot|rapid_trot|fly_trot|<file>.npz]
-#                           [--bridge sim|hardware|virtual] [--record [DIR]] [--namespace /NAME]
+#                           [--bridge sim|hardware|virtual] [--form composed|separate]
+#                           [--record [DIR]] [--namespace /NAME]
 # --bridge: sim (default) = the PyBullet sim bridge; hardware = the real A1 over its low-level UDP
 #   protocol (config/a1_hw_bridge.yaml, realtime only; read docs/hardware.md first); virtual = the
 #   hardware bridge talking UDP on loopback to a virtual A1 that runs the simulation (--world, --clock).
@@ -11,6 +12,9 @@
 #   (without the ros2 CLI: install/gait_policy_node/lib/gait_policy_node/velocity_command
 #    --ros-args -p profile:=constant -p speed:=1.0 -p use_sim_time:=true; :=false with
 #    --bridge hardware, or virtual in realtime: only the sim bridge and lockstep publish /clock)
+# --form: composed = the 500 Hz chain (bridge, estimator, controller) as one process, a1_bringup's
+#   control_chain (the default in realtime: no process hop inside the 2 ms step); separate = one
+#   `ros2 run` a node (the default in lockstep). The gait policy and the tools are their own processes.
 # --namespace: the whole graph in that namespace (/NAME/joint_states, /NAME/cmd_vel, ...), so a second
 #   robot runs beside the first: scripts/bringup.sh --clock lockstep --namespace /a1_2
 # --record: every topic into a rosbag2 bag with MCAP storage (DIR, default <log dir>/bag), written by
@@ -19,16 +23,17 @@
 # parameters from config/; one log per node in log/bringup/<time>/. Ctrl-C or SIGTERM stops them all.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-WORLD=flat CLOCK=realtime POLICY=learned BRIDGE=sim WORLD_GIVEN=0 RECORD=0 BAG=""
+WORLD=flat CLOCK=realtime POLICY=learned BRIDGE=sim WORLD_GIVEN=0 RECORD=0 BAG="" FORM=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --world) WORLD="${2:?--world needs a value}"; WORLD_GIVEN=1; shift 2 ;;
     --bridge) BRIDGE="${2:?--bridge needs a value}"; shift 2 ;;
     --clock) CLOCK="${2:?--clock needs a value}"; shift 2 ;;
     --policy) POLICY="${2:?--policy needs a value}"; shift 2 ;;
+    --form) FORM="${2:?--form needs a value}"; shift 2 ;;
     --namespace) GS_NAMESPACE="${2:?--namespace needs a value}"; shift 2 ;;
     --record) RECORD=1; if [ $# -gt 1 ] && [ "${2#--}" = "$2" ]; then BAG=$2; shift; fi; shift ;;
-    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,23p' "$0"; exit 0 ;;
     *) echo "bringup.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -37,6 +42,8 @@ source "$ROOT/scripts/lib/nodes.sh"
 check_choice bringup.sh --world "$WORLD" flat step rough soft slope
 check_choice bringup.sh --clock "$CLOCK" lockstep realtime
 check_choice bringup.sh --bridge "$BRIDGE" sim hardware virtual
+FORM=${FORM:-$([ "$CLOCK" = realtime ] && echo composed || echo separate)}
+check_choice bringup.sh --form "$FORM" composed separate
 [[ -z "${GS_NAMESPACE:-}" || "$GS_NAMESPACE" =~ ^(/[A-Za-z_][A-Za-z0-9_]*)+$ ]] \
   || { echo "bringup.sh: --namespace must look like /a1_2 (letters, digits, _), got '$GS_NAMESPACE'" >&2; exit 2; }
 if [ "$BRIDGE" = hardware ]; then
@@ -55,8 +62,8 @@ if [ "$RECORD" = 1 ]; then
   [ -e "$BAG" ] && { echo "bringup.sh: --record folder '$BAG' already exists; choose another" >&2; exit 2; }
   start_recorder "$LOGDIR" "$(mkdir -p "$(dirname "$BAG")" && cd "$(dirname "$BAG")" && pwd)/$(basename "$BAG")" "$CLOCK"
 fi
-start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY" "$BRIDGE"
-echo "[bringup] running (bridge=$BRIDGE world=$WORLD clock=$CLOCK policy=$POLICY); logs in $LOGDIR; Ctrl-C to stop"
+start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY" "$BRIDGE" "$FORM"
+echo "[bringup] running (bridge=$BRIDGE world=$WORLD clock=$CLOCK form=$FORM policy=$POLICY); logs in $LOGDIR; Ctrl-C to stop"
 while check_nodes; do sleep 1 & wait $! || true; done
 echo "[bringup] a node exited; stopping the others" >&2
 tail -n 20 "$LOGDIR"/*.log >&2

@@ -10,7 +10,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
-from a1_bringup.graph import describe
+from a1_bringup.graph import composed, describe
 from a1_common.config import load_node_parameters
 from a1_common.robot import a1
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -64,9 +64,11 @@ class Graph:
         unknown = set(self.faults) - set(TOPICS)
         assert not unknown, f"no fault relay for {unknown}; topics: {sorted(TOPICS)}"
 
-    def start(self, name: str, pkg: str, exe: str, *args: str) -> subprocess.Popen:
-        remaps = [a for topic in self.faults if self.publishers[topic] == name
-                  for a in ("-r", f"{topic}:=/fault_in{topic}")]
+    def start(self, name: str, pkg: str, exe: str, *args: str, nodes: tuple[str, ...] = ()) -> subprocess.Popen:
+        """Start process ``name`` running the rclpy ``nodes`` (default: the one node ``name``)."""
+        # Node-scoped remaps: in a composed process only the publishing node's topic moves.
+        remaps = [a for topic in self.faults if self.publishers[topic] in (nodes or (name,))
+                  for a in ("-r", f"{self.publishers[topic]}:{topic}:=/fault_in{topic}")]
         if self.namespace:  # the graph's own sim time: its bridge publishes <namespace>/clock
             remaps += ["-r", f"__ns:={self.namespace}", "-r", "/clock:=clock"]
         if remaps:
@@ -82,11 +84,13 @@ class Graph:
         return proc
 
     def start_stack(self, clock: str = "lockstep", lockstep_timeout: float = 0.5, *controller_params: str,
-                    policy_params: tuple[str, ...] = (), real_time_factor: float = 1.0) -> None:
+                    policy_params: tuple[str, ...] = (), real_time_factor: float = 1.0,
+                    composed_chain: bool = False) -> None:
         """The graph a1_bringup.graph describes for ``clock`` with the sim bridge (and any fault
         relays); ``controller_params`` and ``policy_params`` are extra ``name:=value`` (with
         ``embedded_estimator:=true`` no state_estimator process starts, and the controller
-        publishes /odom)."""
+        publishes /odom); ``composed_chain``: bridge, estimator and controller as one
+        control_chain process."""
         self.realtime = clock == "realtime"
         embedded = self.realtime or "embedded_estimator:=true" in controller_params
         self.sim_time = "true" if clock == "lockstep" else "false"
@@ -103,9 +107,11 @@ class Graph:
                                 "flight_recorder_dir": self.log_dir},  # a fall: its last seconds, see fall_records
                  "convex_mpc": dict(p.split(":=", 1) for p in controller_params),
                  "gait_policy": dict(p.split(":=", 1) for p in policy_params)}
-        for node in describe(clock, "sim", embedded_estimator=embedded):
+        nodes = describe(clock, "sim", embedded_estimator=embedded)
+        for node in nodes:
             node.params.update({k: str(v) for k, v in extra.get(node.name, {}).items()})
-            self.start(node.name, node.package, node.executable, *node.arguments(CONFIG))
+        for node in composed(nodes) if composed_chain else nodes:
+            self.start(node.name, node.package, node.executable, *node.arguments(CONFIG), nodes=node.nodes)
 
     def start_controller(self, *params: str) -> None:
         """The controller as the graph describes it for this graph's clock (after a kill, or next to
@@ -229,7 +235,7 @@ def cpu_seconds(pid: int) -> float:
 
 # Scheduling experiments on realtime graphs (benchmarks/graph_realtime.py, benchmarks/soak.py);
 # why: docs/architecture.md, "Realtime on a small computer".
-FIFO_TARGETS = ("sim_bridge", "convex_mpc", "gait_policy", "probe")  # probe: the benchmark itself
+FIFO_TARGETS = ("sim_bridge", "convex_mpc", "control_chain", "gait_policy", "probe")  # probe: the benchmark itself
 DDS_TRANSPORTS = ("DEFAULT", "UDPv4", "SHM", "LARGE_DATA")
 
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import shlex
 
 import pytest
-from a1_bringup.graph import describe, main, with_settings
+from a1_bringup.control_chain import parse_settings
+from a1_bringup.graph import composed, describe, main, with_settings
 from graph_helpers import CONFIG, ROOT
 
 
@@ -42,7 +43,7 @@ def test_lockstep_with_the_embedded_estimator_and_the_bridges():
 
 def test_every_file_and_executable_it_names_exists():
     for clock, bridge in [("lockstep", "sim"), ("realtime", "sim"), ("lockstep", "virtual"), ("realtime", "hardware")]:
-        for node in describe(clock, bridge):
+        for node in [*describe(clock, bridge), *composed(describe(clock, bridge))]:
             assert all((CONFIG / f).is_file() for f in node.param_files), node
             assert (ROOT / "install" / node.package / "lib" / node.package / node.executable).exists(), node
 
@@ -61,3 +62,33 @@ def test_settings_and_the_shell_lines(capsys, tmp_path):
     assert policy[2:] == ["--ros-args", "--params-file", str(config / "gait_policy.yaml"),
                           "-p", "use_sim_time:=true", "-p", "policy:=a b.npz"]
     assert main(["--clock", "lockstep", "--bridge", "hardware", "--config", "config"]) == 2
+
+
+def test_composed_puts_the_500_hz_chain_in_one_process_and_keeps_each_nodes_parameters():
+    nodes = composed(with_settings(describe("lockstep", "virtual"), ["hw_bridge.robot_ip=10.0.0.2"]))
+    assert _names(nodes) == ["virtual_a1", "control_chain", "gait_policy"]  # the robot and the policy stay apart
+    chain = nodes[1]
+    assert chain.nodes == ("hw_bridge", "state_estimator", "convex_mpc")
+    assert chain.param_files == ["a1_hw_bridge.yaml", "state_estimator.yaml", "convex_mpc.yaml"]
+    assert chain.params == {}  # a plain -p would set every node of the process
+    args = chain.arguments(CONFIG)
+    assert args[:3] == ["--bridge", "hardware", "--estimator"]
+    assert "hw_bridge.robot_ip=10.0.0.2" in args and "convex_mpc.use_sim_time=true" in args
+    assert args.index("--ros-args") > args.index("convex_mpc.use_sim_time=true")
+    realtime = composed(describe("realtime"))
+    assert _names(realtime) == ["control_chain", "gait_policy"]
+    assert realtime[0].arguments(CONFIG)[:2] == ["--bridge", "sim"] and "--estimator" not in realtime[0].options
+    assert realtime[0].param_files == ["a1_sim_bridge.yaml", "convex_mpc.yaml", "convex_mpc_realtime.yaml"]
+    assert describe("realtime")[1].nodes == ("convex_mpc",)
+
+
+def test_chain_settings_are_typed_per_node_and_bad_ones_name_the_item():
+    overrides = parse_settings(["sim_bridge.real_time_factor=0.5", "convex_mpc.use_sim_time=true",
+                                "sim_bridge.flight_recorder_dir=/tmp/a b"], ["sim_bridge", "convex_mpc"])
+    assert [(p.name, p.value) for p in overrides["sim_bridge"]] == [("real_time_factor", 0.5),
+                                                                    ("flight_recorder_dir", "/tmp/a b")]
+    assert [(p.name, p.value) for p in overrides["convex_mpc"]] == [("use_sim_time", True)]
+    with pytest.raises(ValueError, match="no node 'gait_policy' in this chain"):
+        parse_settings(["gait_policy.policy=learned"], ["sim_bridge", "convex_mpc"])
+    with pytest.raises(ValueError, match=r"node\.parameter=value"):
+        parse_settings(["real_time_factor=0.5"], ["sim_bridge"])

@@ -18,7 +18,7 @@ from a1_interface.conversions import ns_from_stamp
 from bag_recorder.bag import read_bag
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
-from graph_helpers import PROBE_QOS, ROOT, Graph, damping_onset, run_until, set_sim_paused
+from graph_helpers import PROBE_QOS, ROOT, SIM_DT, Graph, damping_onset, run_until, set_sim_paused
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -132,13 +132,23 @@ def test_two_namespaced_lockstep_graphs_walk_side_by_side(tmp_path, rclpy_contex
 
 @pytest.mark.ros
 @pytest.mark.slow
-@pytest.mark.parametrize("controller_params", [(), ("embedded_estimator:=true", "mpc_period_steps:=2")],
-                         ids=["estimator_node", "embedded_estimator_mpc_every_2nd_step"])
-def test_cmd_vel_1_mps_walks_within_10_percent(graph, controller_params):
+@pytest.mark.parametrize(("controller_params", "composed_chain"),
+                         [((), False), (("embedded_estimator:=true", "mpc_period_steps:=2"), False), ((), True)],
+                         ids=["estimator_node", "embedded_estimator_mpc_every_2nd_step", "composed_chain"])
+def test_cmd_vel_1_mps_walks_within_10_percent(graph, controller_params, composed_chain):
+    """composed_chain: bridge, estimator and controller in one control_chain process, and what this
+    process (another one) sees of their 500 Hz traffic is what the separate nodes publish."""
     g, watcher, executor = graph
-    g.start_stack("lockstep", 0.5, *controller_params)
+    if composed_chain:
+        watcher.watch_joints_and_commands()
+    g.start_stack("lockstep", 0.5, *controller_params, composed_chain=composed_chain)
     watcher.speed = 1.0
     run_until(executor, watcher, g, 7.0, wall_timeout=240)
+    if composed_chain:
+        assert sorted(g.procs) == ["control_chain", "gait_policy"]
+        steps = round(6.0 / SIM_DT)  # one command and one joint state a step from the stand-up (t = 1 s) on
+        assert len({t for t in watcher.commands if t >= 1.0}) >= 0.9 * steps
+        assert len({t for t, _, _ in watcher.joints if t >= 1.0}) >= 0.9 * steps
     assert watcher.lowest() > 0.18, "fell"
     # Stand-up 1 s, then 1 m/s^2 to 1.0 m/s: 5 s into walking is about t = 6..7 s.
     assert watcher.mean_speed(6.0, 7.0) == pytest.approx(1.0, rel=0.10)

@@ -86,10 +86,12 @@ recorder_summary() {  # <logdir>: what the recorder wrote (after stop_nodes clos
   grep -h -A1000 "bag_recorder: wrote" "$1/record.log" 2>/dev/null || echo "[nodes] the recorder wrote no summary; see $1/record.log"
 }
 
-start_graph() {  # <logdir> <world> <clock> <policy> [bridge]: a bridge and the stack nodes (a1_bringup.graph)
+start_graph() {  # <logdir> <world> <clock> <policy> [bridge] [form]: a bridge and the stack nodes (a1_bringup.graph)
   # bridge: sim (default) | hardware (the real A1, realtime) | virtual (hw_bridge + virtual_a1 on loopback)
-  local logdir=$1 world=$2 clock=$3 policy=$4 bridge=${5:-sim}
+  # form: separate (default: one process a node) | composed (bridge, estimator, controller in one control_chain)
+  local logdir=$1 world=$2 clock=$3 policy=$4 bridge=${5:-sim} form=${6:-separate}
   local sets=(--set "gait_policy.policy=$policy")
+  [ "$form" = composed ] && sets+=(--composed)
   case "$bridge" in
     sim) sets+=(--set "sim_bridge.world=$world" --set "sim_bridge.flight_recorder_dir=$logdir") ;;  # a fall: its last 5 s
     virtual) sets+=(--set "virtual_a1.world=$world") ;;

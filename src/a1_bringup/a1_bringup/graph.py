@@ -11,9 +11,12 @@ end-to-end tests and benchmarks) starts the same NodeSpecs. The rules:
 - realtime: wall clock; the controller embeds the estimator and loads the realtime overlay
   config/convex_mpc_realtime.yaml (docs/architecture.md, "Realtime on a small computer").
 
-    python -m a1_bringup.graph --clock lockstep --bridge sim --config config --set gait_policy.policy=learned
+- composed: the 500 Hz chain (sim_bridge or hw_bridge, state_estimator, convex_mpc) as one
+  process, a1_bringup's control_chain; virtual_a1 (it plays the robot) and gait_policy stay apart.
 
-prints one shell-quoted line per node: package, executable, arguments.
+    python -m a1_bringup.graph --clock lockstep --config config --set gait_policy.policy=learned [--composed]
+
+prints one shell-quoted line per process: package, executable, arguments.
 """
 
 from __future__ import annotations
@@ -35,10 +38,17 @@ class NodeSpec:
     executable: str
     param_files: list[str]  # file names under config/, in load order (later ones override)
     params: dict[str, str] = field(default_factory=dict)  # -p name:=value, after the files
+    options: list[str] = field(default_factory=list)  # the executable's own, before --ros-args
+    members: tuple[str, ...] = ()  # a composed process: the nodes in it (else just this one)
+
+    @property
+    def nodes(self) -> tuple[str, ...]:
+        """The names of the rclpy nodes this process runs."""
+        return self.members or (self.name,)
 
     def arguments(self, config_dir: Path) -> list[str]:
         """The node's command-line arguments (after the executable)."""
-        args = ["--ros-args"]
+        args = [*self.options, "--ros-args"]
         for name in self.param_files:
             args += ["--params-file", str(config_dir / name)]
         for key, value in self.params.items():
@@ -75,6 +85,26 @@ def describe(clock: str, bridge: str = "sim", *, embedded_estimator: bool | None
     return nodes
 
 
+CHAIN = ("sim_bridge", "hw_bridge", "state_estimator", "convex_mpc")  # what control_chain composes
+
+
+def composed(nodes: list[NodeSpec]) -> list[NodeSpec]:
+    """``nodes`` with the 500 Hz chain's members replaced by one control_chain process, started
+    where its first member was; each member keeps its parameter files and parameters."""
+    members = [n for n in nodes if n.name in CHAIN]
+    if not members:
+        return nodes
+    options = ["--bridge", "sim" if members[0].name == "sim_bridge" else "hardware"]
+    options += ["--estimator"] * any(n.name == "state_estimator" for n in members)
+    for member in members:
+        options += [a for key, value in member.params.items() for a in ("--set", f"{member.name}.{key}={value}")]
+    files = list(dict.fromkeys(f for n in members for f in n.param_files))
+    chain = NodeSpec("control_chain", "a1_bringup", "control_chain", files, options=options,
+                     members=tuple(n.name for n in members))
+    first = nodes.index(members[0])
+    return [*nodes[:first], chain, *(n for n in nodes[first:] if n.name not in CHAIN)]
+
+
 def with_settings(nodes: list[NodeSpec], settings: list[str]) -> list[NodeSpec]:
     """``node.param=value`` settings applied to ``nodes``; ValueError naming a node not in the graph."""
     by_name = {n.name: n for n in nodes}
@@ -95,9 +125,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bridge", default="sim", choices=BRIDGES)
     parser.add_argument("--config", type=Path, required=True, help="the config/ folder")
     parser.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE")
+    parser.add_argument("--composed", action="store_true",
+                        help="the 500 Hz chain (bridge, estimator, controller) as one control_chain process")
     args = parser.parse_args(argv)
     try:
         nodes = with_settings(describe(args.clock, args.bridge), args.set)
+        nodes = composed(nodes) if args.composed else nodes
     except ValueError as exc:
         print(f"a1_bringup.graph: {exc}", file=sys.stderr)
         return 2

@@ -11,7 +11,7 @@ import gc
 import inspect
 import sys
 import time
-from collections.abc import Callable, Collection, Mapping
+from collections.abc import Callable, Collection, Mapping, Sequence
 from contextlib import ExitStack
 from typing import Any
 
@@ -295,19 +295,27 @@ class DirectExecutor(SingleThreadedExecutor):
 
 
 def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = None) -> None:
-    """Create the node from ``factory`` and spin it until Ctrl-C / SIGTERM / shutdown.
+    """Create the node from ``factory`` and spin it until Ctrl-C / SIGTERM / shutdown (see run_nodes)."""
+    run_nodes(name, [factory], args)
 
-    The node spins in a DirectExecutor.
+
+def run_nodes(name: str, factories: Sequence[Callable[[], Any]], args: list[str] | None = None) -> None:
+    """Create the nodes from ``factories`` (in order) and spin them in one DirectExecutor until
+    Ctrl-C / SIGTERM / shutdown; one node a process (``ros2 run`` of a node) or several composed in
+    one (a1_bringup's control_chain), each its own rclpy node with its own name and parameters.
+
     Configuration errors end the process with exit code 2 and one readable line; a node that sets
-    ``node.failure`` (its own thread died) ends it with exit code 1.
+    ``node.failure`` (its own thread died) ends it with exit code 1. The nodes are shut down in the
+    reverse order of their creation (a controller stops before the bridge it commands).
     """
     rclpy.init(args=args)
-    node = None
+    nodes: list[Any] = []
     try:
-        node = factory()
         executor = DirectExecutor()
-        executor.add_node(node)
-        # Start-up objects (modules, the node) are never garbage: keeping them out of the cyclic
+        for factory in factories:
+            nodes.append(factory())
+            executor.add_node(nodes[-1])
+        # Start-up objects (modules, the nodes) are never garbage: keeping them out of the cyclic
         # collector's full passes keeps those passes from stalling a 2 ms control step.
         gc.freeze()
         executor.spin()
@@ -321,10 +329,10 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
         print(f"{name}: configuration error: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
     finally:
-        if node is not None:
+        for node in reversed(nodes):
             if hasattr(node, "shutdown"):
                 node.shutdown()
             node.destroy_node()
         rclpy.try_shutdown()
-    if getattr(node, "failure", None) is not None:
+    if any(getattr(node, "failure", None) is not None for node in nodes):
         raise SystemExit(1)

@@ -147,6 +147,8 @@ class SimBridgeNode(Node):
         self._overruns = 0
         self._uncommanded_steps = 0  # steps applied with no command accepted since the step before
         self._accepted_at_last_step = 0
+        self._uncommanded_run = 0  # steps in a row with nothing new to apply, now
+        self._longest_uncommanded_run = 0  # ... the longest since the last /diagnostics
         self._lowest_base_height = float("inf")  # [m] since the last /diagnostics
         # Sensor-to-command latency as the robot sees it: wall time from publishing step k's
         # sensors to receiving the command stamped k [s], over the last /diagnostics period.
@@ -247,7 +249,10 @@ class SimBridgeNode(Node):
                         self._commanded_damping = self._applied_damping and not self.watchdog.in_fallback
                         self._applied_stamp_ns = self._pending_stamp_ns
                         # A missed 2 ms deadline, as the robot sees it: nothing new to apply this step.
-                        self._uncommanded_steps += self.watchdog.accepted == self._accepted_at_last_step
+                        fresh = self.watchdog.accepted != self._accepted_at_last_step
+                        self._uncommanded_steps += not fresh
+                        self._uncommanded_run = 0 if fresh else self._uncommanded_run + 1
+                        self._longest_uncommanded_run = max(self._longest_uncommanded_run, self._uncommanded_run)
                         self._accepted_at_last_step = self.watchdog.accepted
                         readings = self.sim.step(command)
                 self._publish(readings)
@@ -359,6 +364,7 @@ class SimBridgeNode(Node):
         with self._lock:
             latencies, self._latencies = self._latencies, []
             lowest, self._lowest_base_height = self._lowest_base_height, float("inf")
+            longest_gap, self._longest_uncommanded_run = self._longest_uncommanded_run, 0
         now = time.monotonic()
         t0, n0 = self._rate_window
         self._achieved_rate = (self._published - n0) / max(now - t0, 1e-9)
@@ -385,6 +391,8 @@ class SimBridgeNode(Node):
             "late_commands": self._late_commands, "lockstep_timeouts": self._lockstep_timeouts,
             "realtime_overruns": self._overruns, "paused": self._paused,
             "uncommanded_steps": self._uncommanded_steps,
+            # Longest time between two steps with a new command in this period (one step: none missed) [ms].
+            "longest_command_gap_ms": f"{(longest_gap + 1) * self.sim.config.time_step * 1e3:.0f}",
             "commanded_steps_window": len(latencies),
             "latency_median_ms": f"{np.median(latencies) * 1e3:.3f}" if latencies else "n/a",
             "latency_p99_ms": f"{np.percentile(latencies, 99) * 1e3:.3f}" if latencies else "n/a",

@@ -1,0 +1,96 @@
+"""control_chain: the 500 Hz chain (bridge, estimator, controller) composed in one process.
+
+The same rclpy nodes as ``ros2 run`` of each (sim_bridge or hw_bridge, state_estimator, convex_mpc),
+with their own names, parameters and topics, spun by one executor in one process: a sensor message
+and the command it triggers never cross a process boundary, so the 2 ms step pays no wake-up of
+another process and no shared-memory transport (Fast DDS delivers within a process directly).
+What another process sees on the wire (``ros2 topic echo``) is unchanged.
+
+    control_chain --bridge sim [--estimator] --set sim_bridge.clock_mode=realtime ... \\
+        --ros-args --params-file config/a1_sim_bridge.yaml --params-file config/convex_mpc.yaml ...
+
+Parameter files are keyed by node name (``/**/sim_bridge``), so one process takes them all. A value
+for one node is ``--set <node>.<name>=<value>`` (YAML-typed, like ``-p``): ROS's own
+``-p <node>:<name>:=<value>`` misses a node that runs in a namespace (``-r __ns:=/a1_1``), and a
+plain ``-p`` sets every node. ``--estimator`` adds the state_estimator node (a lockstep graph whose
+controller does not embed it). a1_bringup.graph writes these command lines.
+Killing the process stops the bridge with the controller: the simulated robot is gone with it, and
+the real (or virtual) A1 damps its motors on its own once the commands stop, as with a dead controller.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+from collections.abc import Callable
+from typing import Any
+
+import yaml
+from rclpy.parameter import Parameter
+from rclpy.utilities import remove_ros_args
+
+CHAIN_BRIDGES = ("sim", "hardware")
+
+
+def chain_nodes(bridge: str, estimator: bool) -> list[tuple[str, Callable[..., Any]]]:
+    """(node name, node class) of the chain in start order: bridge, estimator (if asked),
+    controller. Imported here so that a hardware chain never loads the simulator."""
+    if bridge == "sim":
+        from a1_sim_bridge.node import SimBridgeNode as Bridge
+    elif bridge == "hardware":
+        from a1_hw_bridge.node import HardwareBridgeNode as Bridge
+    else:
+        raise ValueError(f"bridge must be one of {list(CHAIN_BRIDGES)}, got {bridge!r}")
+    from convex_mpc_node.node import ConvexMpcNode
+
+    nodes: list[tuple[str, Callable[..., Any]]] = [("sim_bridge" if bridge == "sim" else "hw_bridge", Bridge)]
+    if estimator:
+        from state_estimator_node.node import StateEstimatorNode
+
+        nodes.append(("state_estimator", StateEstimatorNode))
+    nodes.append(("convex_mpc", ConvexMpcNode))
+    return nodes
+
+
+def parse_settings(settings: list[str], names: list[str]) -> dict[str, list[Parameter]]:
+    """``node.param=value`` items as each node's parameter overrides; ValueError naming the item."""
+    overrides: dict[str, list[Parameter]] = {name: [] for name in names}
+    for item in settings:
+        target, sep, text = item.partition("=")
+        node, dot, param = target.partition(".")
+        if not sep or not dot or not param:
+            raise ValueError(f"--set must look like node.parameter=value, got {item!r}")
+        if node not in overrides:
+            raise ValueError(f"--set {item!r}: no node {node!r} in this chain; nodes: {names}")
+        try:
+            value = yaml.safe_load(text) if text else ""
+            overrides[node].append(Parameter(param, value=value))
+        except (yaml.YAMLError, TypeError) as exc:
+            raise ValueError(f"--set {item!r}: not a parameter value: {exc}") from None
+    return overrides
+
+
+def main(args: list[str] | None = None) -> None:
+    argv = sys.argv if args is None else args
+    parser = argparse.ArgumentParser(prog="control_chain", description=__doc__.split("\n")[0])
+    parser.add_argument("--bridge", choices=CHAIN_BRIDGES, default="sim",
+                        help="sim: the PyBullet A1 (sim_bridge); hardware: an A1 over UDP (hw_bridge)")
+    parser.add_argument("--estimator", action="store_true",
+                        help="also run the state_estimator node (for a controller without embedded_estimator)")
+    parser.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE",
+                        help="a parameter of one node of the chain (repeatable; after its parameter files)")
+    options = parser.parse_args(remove_ros_args(argv)[1:])
+    nodes = chain_nodes(options.bridge, options.estimator)
+    try:
+        overrides = parse_settings(options.set, [name for name, _ in nodes])
+    except ValueError as exc:
+        parser.error(str(exc))
+    from a1_common.node_support import run_nodes
+
+    run_nodes("control_chain", [functools.partial(cls, parameter_overrides=overrides[name]) for name, cls in nodes],
+              argv)
+
+
+if __name__ == "__main__":
+    main()
