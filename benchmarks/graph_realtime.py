@@ -79,7 +79,7 @@ def measure(form: str, args: argparse.Namespace, fifo: dict[str, int]) -> dict:
 
     graph = Graph(Path(tempfile.mkdtemp(prefix=f"graph_realtime_{form}_")))
     graph.start_stack("realtime", 0.5, *args.controller_param, real_time_factor=args.real_time_factor,
-                      composed_chain=form == "composed")
+                      policy_params=(f"policy:={args.policy}",), composed_chain=form == "composed")
     apply_fifo(graph, fifo)
     rclpy.init(args=[])  # not sys.argv: --controller-param values are no ROS arguments
     node = Node("realtime_probe")
@@ -180,6 +180,8 @@ def main() -> None:
     parser.add_argument("--acceleration", type=float, default=1.0, help="of the command's ramp [m/s^2]")
     parser.add_argument("--joiners", type=int, default=0,
                         help="start and stop a /joint_states subscriber process this many times in the window")
+    parser.add_argument("--policy", default="learned",
+                        help="gait_policy's policy: learned (its default), scheduled, a hand-tuned gait, or a .npz")
     parser.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE",
                         help="extra convex_mpc parameter, e.g. embedded_estimator:=true (repeatable)")
     add_scheduling_options(parser)
@@ -217,7 +219,7 @@ def main() -> None:
     for r in rows:
         print("  ".join(f"{cell:<{w}}" for cell, w in zip(r, widths, strict=True)))
     print(json.dumps({
-        "forms": results, "top_speed_mps": args.top_speed, "acceleration_mps2": args.acceleration,
+        "forms": results, "policy": args.policy, "top_speed_mps": args.top_speed, "acceleration_mps2": args.acceleration,
         "fifo_priorities": fifo, "dds_transports": args.dds_transports or "fastdds-default",
         "real_time_factor": args.real_time_factor,
     }))

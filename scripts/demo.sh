@@ -4,16 +4,19 @@
 #
 # Usage: scripts/demo.sh [--world flat|step|rough|soft|slope] [--duration SECONDS] [--clock lockstep|realtime]
 #                        [--policy learned|scheduled|walk|slow_trot|rapid_trot|fly_trot|<file>.npz] [--no-record]
+#                        [--form separate|composed]
 #
 # Starts sim_bridge, state_estimator, convex_mpc and gait_policy (scripts/lib/nodes.sh), the
 # velocity_command ramp and demo_report, which after --duration seconds of sim time (default 20)
 # prints distance, speed tracking, gait, power and cost of transport per speed band, and writes
 # a gait diagram PNG (log/demo/gait_diagram.png), and records every topic into a rosbag2 bag with
 # MCAP storage, log/demo/bag (unless --no-record). Every node started here is stopped on exit,
-# Ctrl-C or SIGTERM. Per-node logs: log/demo/<node>.log.
+# Ctrl-C or SIGTERM. Per-node logs: log/demo/<node>.log. --form as in scripts/bringup.sh: composed
+# (the bridge, estimator and controller in one control_chain process; the default in realtime) or
+# separate (a process a node; the default in lockstep).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-WORLD=flat DURATION=20 CLOCK=lockstep POLICY=learned RECORD=1
+WORLD=flat DURATION=20 CLOCK=lockstep POLICY=learned RECORD=1 FORM=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --world) WORLD="${2:?--world needs a value}"; shift 2 ;;
@@ -21,7 +24,8 @@ while [ $# -gt 0 ]; do
     --clock) CLOCK="${2:?--clock needs a value}"; shift 2 ;;
     --policy) POLICY="${2:?--policy needs a value}"; shift 2 ;;
     --no-record) RECORD=0; shift ;;
-    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
+    --form) FORM="${2:?--form needs a value}"; shift 2 ;;
+    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
     *) echo "demo.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -29,6 +33,8 @@ done
 source "$ROOT/scripts/lib/nodes.sh"
 check_choice demo.sh --world "$WORLD" flat step rough soft slope
 check_choice demo.sh --clock "$CLOCK" lockstep realtime
+FORM=${FORM:-$([ "$CLOCK" = realtime ] && echo composed || echo separate)}
+check_choice demo.sh --form "$FORM" composed separate
 resolve_policy demo.sh "$POLICY"
 [[ "$DURATION" =~ ^[0-9]+([.][0-9]+)?$ ]] && awk "BEGIN{exit !($DURATION > 0 && $DURATION <= 3600)}" \
   || { echo "demo.sh: --duration must be a number of seconds in (0, 3600], got '$DURATION'" >&2; exit 2; }
@@ -42,12 +48,12 @@ mkdir -p "$LOGDIR"
 trap stop_nodes EXIT
 trap 'exit 130' INT TERM
 
-echo "[demo] world=$WORLD clock=$CLOCK policy=$POLICY duration=${DURATION}s of sim time (logs in $LOGDIR)"
+echo "[demo] world=$WORLD clock=$CLOCK form=$FORM policy=$POLICY duration=${DURATION}s of sim time (logs in $LOGDIR)"
 if [ "$RECORD" = 1 ]; then
   rm -rf "$LOGDIR/bag"  # the demo's logs are the last run's
   start_recorder "$LOGDIR" "$LOGDIR/bag" "$CLOCK"
 fi
-start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY"
+start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY" sim "$FORM"
 # The ramp starts after 1.5 s: the controller stands up first (stand_time in config/convex_mpc.yaml).
 start_node gait_policy_node velocity_command "$LOGDIR" --ros-args -p use_sim_time:=true -p profile:=ramp \
   -p speed:=2.5 -p acceleration:=1.0 -p start_delay:=1.5

@@ -14,7 +14,7 @@ import socket
 
 import numpy as np
 import pytest
-from a1_bringup.graph import describe
+from a1_bringup.graph import composed, describe
 from diagnostic_msgs.msg import DiagnosticArray
 from graph_helpers import CONFIG, DAMPING_KD, MOTOR_TORQUE_LIMIT, Graph, run_until
 from ros_helpers import spin_until
@@ -29,15 +29,19 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def start_hil_graph(g: Graph, packet_loss: float, lockstep_timeout: float = 0.5) -> None:
-    """The graph a1_bringup.graph describes for the virtual bridge in lockstep, on a free port."""
+def start_hil_graph(g: Graph, packet_loss: float, lockstep_timeout: float = 0.5, clock: str = "lockstep",
+                    composed_chain: bool = False) -> None:
+    """The graph a1_bringup.graph describes for the virtual bridge (in lockstep unless ``clock``
+    says otherwise), on a free port; ``composed_chain``: hw_bridge and controller in one process."""
     port = free_udp_port()
     extra = {"virtual_a1": {"port": port, "packet_loss": packet_loss, "loss_seed": 7, "settle_time": 0.0},
              "hw_bridge": {"robot_port": port, "local_port": 0, "state_timeout": 0.02,
                            "lockstep_timeout": lockstep_timeout}}
-    for node in describe("lockstep", "virtual"):
+    nodes = describe(clock, "virtual")
+    for node in nodes:
         node.params.update({k: str(v) for k, v in extra.get(node.name, {}).items()})
-        g.start(node.name, node.package, node.executable, *node.arguments(CONFIG))
+    for node in composed(nodes) if composed_chain else nodes:
+        g.start(node.name, node.package, node.executable, *node.arguments(CONFIG), nodes=node.nodes)
 
 
 def first_damped_tick(joints: list[tuple[float, np.ndarray, np.ndarray]], after: float) -> float | None:
@@ -121,3 +125,25 @@ def test_hil_5_percent_packet_loss_does_not_fall(hil):
     print(f"HIL 5% loss: mean speed {speed:.3f} m/s at 5-6 s over {ticks} ticks; "
           f"lost {robot['commands_lost_injected']} commands, {robot['states_lost_injected']} states")
 
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_hil_realtime_composed_chain_stands_up_and_the_robot_damps_when_it_is_killed(hil):
+    """hw_bridge and convex_mpc composed in one control_chain process, against the virtual A1 on the
+    wall clock: the bridge's safe start and the controller stand the robot up. SIGKILL of that
+    process takes bridge and controller at once, so nothing sends the bridge's last damping
+    datagrams: the robot, left without commands, damps its motors on its own after its
+    command_loss_timeout (config/virtual_a1.yaml), as the real A1 is assumed to."""
+    g, watcher, executor, diagnostics = hil
+    start_hil_graph(g, packet_loss=0.0, clock="realtime", composed_chain=True)
+    assert sorted(g.procs) == ["control_chain", "gait_policy", "virtual_a1"]
+    run_until(executor, watcher, g, STAND_UP_DONE + 1.0, wall_timeout=120)
+    assert max(z for t, _, z in watcher.truth if t > STAND_UP_DONE - 1.0) > 0.24, "never stood up"
+    assert spin_until(executor, lambda: int(diagnostics.get("virtual_a1", {}).get("commands_accepted", 0)) > 0, 5.0)
+    fallbacks = int(diagnostics["virtual_a1"]["command_loss_fallbacks"])
+    g.kill("control_chain")
+    killed_at = watcher.sim_time()
+    assert spin_until(executor, lambda: int(diagnostics["virtual_a1"]["command_loss_fallbacks"]) > fallbacks,
+                      10.0), "the robot did not go to its command-loss damping"
+    run_until(executor, watcher, g, killed_at + 0.5, wall_timeout=30)  # the robot lives on, damped
