@@ -12,9 +12,9 @@
 #   (without the ros2 CLI: install/gait_policy_node/lib/gait_policy_node/velocity_command
 #    --ros-args -p profile:=constant -p speed:=1.0 -p use_sim_time:=true; :=false with
 #    --bridge hardware, or virtual in realtime: only the sim bridge and lockstep publish /clock)
-# --form: composed = the 500 Hz chain (bridge, estimator, controller) as one process, a1_bringup's
-#   control_chain (the default in realtime: no process hop inside the 2 ms step); separate = one
-#   `ros2 run` a node (the default in lockstep). The gait policy and the tools are their own processes.
+# --form: composed (default) = the 500 Hz chain (bridge, estimator, controller) as one process,
+#   a1_bringup's control_chain: no process hop inside the 2 ms step; separate = one `ros2 run` a node.
+#   The gait policy and the tools are their own processes either way.
 # --namespace: the whole graph in that namespace (/NAME/joint_states, /NAME/cmd_vel, ...), so a second
 #   robot runs beside the first: scripts/bringup.sh --clock lockstep --namespace /a1_2
 # --record: every topic into a rosbag2 bag with MCAP storage (DIR, default <log dir>/bag), written by
@@ -42,7 +42,7 @@ source "$ROOT/scripts/lib/nodes.sh"
 check_choice bringup.sh --world "$WORLD" flat step rough soft slope
 check_choice bringup.sh --clock "$CLOCK" lockstep realtime
 check_choice bringup.sh --bridge "$BRIDGE" sim hardware virtual
-FORM=${FORM:-$([ "$CLOCK" = realtime ] && echo composed || echo separate)}
+FORM=${FORM:-composed}
 check_choice bringup.sh --form "$FORM" composed separate
 [[ -z "${GS_NAMESPACE:-}" || "$GS_NAMESPACE" =~ ^(/[A-Za-z_][A-Za-z0-9_]*)+$ ]] \
   || { echo "bringup.sh: --namespace must look like /a1_2 (letters, digits, _), got '$GS_NAMESPACE'" >&2; exit 2; }

@@ -230,17 +230,18 @@ def test_controller_killed_damps_within_50_ms_then_recovers(graph):
 
 
 @pytest.mark.ros
-@pytest.mark.parametrize("record", [False, True], ids=["plain", "record"])
+@pytest.mark.parametrize("record", [False, True], ids=["plain_composed", "record_separate"])
 def test_bringup_script_leaves_no_process_after_sigterm(rclpy_context, tmp_path, record):
-    """--record adds the bag recorder, whose bag SIGTERM closes: metadata.yaml, and the graph's topics
-    read back with the library."""
+    """The default form (control_chain and gait_policy), and ``--form separate`` (a process a node)
+    with --record, which adds the bag recorder, whose bag SIGTERM closes: metadata.yaml, and the
+    graph's topics read back with the library."""
     env = {**os.environ}
     bag = tmp_path / "bag"
-    extra = ["--record", str(bag)] if record else []
+    extra = ["--form", "separate", "--record", str(bag)] if record else []
     proc = subprocess.Popen(["bash", str(ROOT / "scripts" / "bringup.sh"), "--clock", "lockstep", *extra], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     pids = []
-    nodes = 5 if record else 4
+    nodes = 5 if record else 2
     deadline = time.monotonic() + 60
     while len(pids) < nodes and time.monotonic() < deadline:
         line = proc.stdout.readline()

@@ -4,7 +4,9 @@ The same rclpy nodes as ``ros2 run`` of each (sim_bridge or hw_bridge, state_est
 with their own names, parameters and topics, spun by one executor in one process: a sensor message
 and the command it triggers never cross a process boundary, so the 2 ms step pays no wake-up of
 another process and no shared-memory transport (Fast DDS delivers within a process directly).
-What another process sees on the wire (``ros2 topic echo``) is unchanged.
+With the sim bridge, the simulation steps in the executor's thread too (SimBridgeNode.poll): one
+Python thread does the whole step, and no second one waits for the GIL inside it. What another
+process sees on the wire (``ros2 topic echo``) is unchanged.
 
     control_chain --bridge sim [--estimator] --set sim_bridge.clock_mode=realtime ... \\
         --ros-args --params-file config/a1_sim_bridge.yaml --params-file config/convex_mpc.yaml ...
@@ -88,8 +90,12 @@ def main(args: list[str] | None = None) -> None:
         parser.error(str(exc))
     from a1_common.node_support import run_nodes
 
-    run_nodes("control_chain", [functools.partial(cls, parameter_overrides=overrides[name]) for name, cls in nodes],
-              argv)
+    factories = [functools.partial(cls, parameter_overrides=overrides[name]) for name, cls in nodes]
+    poll = None
+    if options.bridge == "sim":  # the simulation steps in the executor's thread: one Python thread
+        factories[0] = functools.partial(factories[0], own_thread=False)
+        poll = lambda created: created[0].poll()  # noqa: E731 (the bridge is created first)
+    run_nodes("control_chain", factories, argv, poll=poll)
 
 
 if __name__ == "__main__":

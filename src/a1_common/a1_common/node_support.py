@@ -7,6 +7,7 @@ the parameter, instead of rclpy's exception about INTEGER vs DOUBLE.
 
 from __future__ import annotations
 
+import functools
 import gc
 import inspect
 import sys
@@ -170,10 +171,12 @@ class DirectExecutor(SingleThreadedExecutor):
         self._entities_stale = True
         super().remove_node(node)
 
-    def spin(self) -> None:
+    def spin(self, poll: Callable[[], float] | None = None) -> None:
+        """Spin until shutdown; ``poll`` (if given) runs between waits, does the work due outside
+        callbacks (a simulation step) and returns how long the next wait may last [s]."""
         try:
             while self._context.ok() and not self._is_shutdown:
-                self.spin_direct_once()
+                self.spin_direct_once(None if poll is None else poll())
         finally:
             self._held.close()
 
@@ -299,14 +302,16 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
     run_nodes(name, [factory], args)
 
 
-def run_nodes(name: str, factories: Sequence[Callable[[], Any]], args: list[str] | None = None) -> None:
+def run_nodes(name: str, factories: Sequence[Callable[[], Any]], args: list[str] | None = None, *,
+              poll: Callable[[Sequence[Any]], float] | None = None) -> None:
     """Create the nodes from ``factories`` (in order) and spin them in one DirectExecutor until
     Ctrl-C / SIGTERM / shutdown; one node a process (``ros2 run`` of a node) or several composed in
     one (a1_bringup's control_chain), each its own rclpy node with its own name and parameters.
 
     Configuration errors end the process with exit code 2 and one readable line; a node that sets
     ``node.failure`` (its own thread died) ends it with exit code 1. The nodes are shut down in the
-    reverse order of their creation (a controller stops before the bridge it commands).
+    reverse order of their creation (a controller stops before the bridge it commands). ``poll``,
+    given the nodes, runs between the executor's waits (see DirectExecutor.spin).
     """
     rclpy.init(args=args)
     nodes: list[Any] = []
@@ -318,7 +323,7 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Any]], args: list[str]
         # Start-up objects (modules, the nodes) are never garbage: keeping them out of the cyclic
         # collector's full passes keeps those passes from stalling a 2 ms control step.
         gc.freeze()
-        executor.spin()
+        executor.spin(None if poll is None else functools.partial(poll, nodes))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:  # rclpy's RCLError derives from it

@@ -87,8 +87,12 @@ NODE_PARAMETERS = parameter_defaults(NodeParameters())
 
 
 class SimBridgeNode(Node):
-    def __init__(self, **node_kwargs) -> None:
-        """``node_kwargs`` go to rclpy's Node (tests pass ``context`` and ``parameter_overrides``)."""
+    def __init__(self, *, own_thread: bool = True, **node_kwargs) -> None:
+        """``node_kwargs`` go to rclpy's Node (tests pass ``context`` and ``parameter_overrides``).
+
+        ``own_thread``: the simulation steps in a thread of its own (a node alone in its process);
+        False: in the executor's thread, through ``poll`` (a composed process: no second Python
+        thread contends for the GIL inside the 2 ms step)."""
         super().__init__("sim_bridge", **node_kwargs)
         with recording_constraints() as constraints:
             params = declare_settings(self, SimConfig(), SensorNoise(), NodeParameters())
@@ -155,11 +159,16 @@ class SimBridgeNode(Node):
         self._published_at: collections.OrderedDict[int, float] = collections.OrderedDict()
         self._latencies: list[float] = []
         self.failure: Exception | None = None
-        self._thread = threading.Thread(target=self._loop, name="sim_loop", daemon=True)
+        self._thread = threading.Thread(target=self._loop, name="sim_loop", daemon=True) if own_thread else None
+        self._period = self.sim.config.time_step / self.real_time_factor  # realtime pacing, wall seconds
+        self._next_deadline: float | None = None  # poll: monotonic time of the next step (None: not begun)
+        self._waiting_since = 0.0  # poll, lockstep: when the current step's sensors went out
         self.get_logger().info(
             f"A1 sim ready: world={self.sim.config.world} clock_mode={self.clock_mode} "
-            f"dt={self.sim.config.time_step}s command_timeout={self.watchdog.timeout}s")
-        self._thread.start()
+            f"dt={self.sim.config.time_step}s command_timeout={self.watchdog.timeout}s "
+            f"({'own thread' if own_thread else 'stepped by the executor'})")
+        if self._thread is not None:
+            self._thread.start()
 
     # --- callbacks (executor thread) ---------------------------------------------------------
     def _on_command(self, raw: bytes) -> None:
@@ -218,7 +227,7 @@ class SimBridgeNode(Node):
 
     # --- simulation loop (own thread) --------------------------------------------------------
     def _loop(self) -> None:
-        period = self.sim.config.time_step / self.real_time_factor  # realtime pacing, wall seconds
+        period = self._period
         next_deadline = time.monotonic()
         try:
             self._publish(self.sim.sensors())
@@ -238,23 +247,7 @@ class SimBridgeNode(Node):
                             continue
                         if not got:
                             self._lockstep_timeouts += 1
-                    if self.watchdog.accepted_since_reset == 0:
-                        # Nobody has commanded this run yet (start-up, discovery): hold the sim in its
-                        # start pose and offer the sensors again, so every run starts alike (a robot
-                        # left in damping while its controller starts folds to the ground).
-                        readings = self.sim.sensors()
-                    else:
-                        command = self.watchdog.active(self.sim.time)
-                        self._applied_damping = command.mode == MotorMode.DAMPING
-                        self._commanded_damping = self._applied_damping and not self.watchdog.in_fallback
-                        self._applied_stamp_ns = self._pending_stamp_ns
-                        # A missed 2 ms deadline, as the robot sees it: nothing new to apply this step.
-                        fresh = self.watchdog.accepted != self._accepted_at_last_step
-                        self._uncommanded_steps += not fresh
-                        self._uncommanded_run = 0 if fresh else self._uncommanded_run + 1
-                        self._longest_uncommanded_run = max(self._longest_uncommanded_run, self._uncommanded_run)
-                        self._accepted_at_last_step = self.watchdog.accepted
-                        readings = self.sim.step(command)
+                    readings = self._advance()
                 self._publish(readings)
                 if self.clock_mode == "realtime":
                     next_deadline += period
@@ -272,6 +265,65 @@ class SimBridgeNode(Node):
                                     f"{traceback.format_exc()}")
             self.failure = exc
             self.context.try_shutdown()  # ends spin() in main(), which exits non-zero
+
+    def _advance(self):
+        """One 2 ms step with the command in force (lock held); its sensor readings."""
+        if self.watchdog.accepted_since_reset == 0:
+            # Nobody has commanded this run yet (start-up, discovery): hold the sim in its start pose
+            # and offer the sensors again, so every run starts alike (a robot left in damping while
+            # its controller starts folds to the ground).
+            return self.sim.sensors()
+        command = self.watchdog.active(self.sim.time)
+        self._applied_damping = command.mode == MotorMode.DAMPING
+        self._commanded_damping = self._applied_damping and not self.watchdog.in_fallback
+        self._applied_stamp_ns = self._pending_stamp_ns
+        # A missed 2 ms deadline, as the robot sees it: nothing new to apply this step.
+        fresh = self.watchdog.accepted != self._accepted_at_last_step
+        self._uncommanded_steps += not fresh
+        self._uncommanded_run = 0 if fresh else self._uncommanded_run + 1
+        self._longest_uncommanded_run = max(self._longest_uncommanded_run, self._uncommanded_run)
+        self._accepted_at_last_step = self.watchdog.accepted
+        return self.sim.step(command)
+
+    def poll(self) -> float:
+        """The simulation loop without its thread (``own_thread=False``), called by the executor's
+        thread between waits: does what is due now (a reset, a step) and returns how long the
+        executor may wait for messages before calling again [s]. Same rules as ``_loop``: lockstep
+        steps once the step's command is in or ``lockstep_timeout`` passed; realtime on the wall
+        clock's deadlines."""
+        now = time.monotonic()
+        with self._lock:
+            if self._next_deadline is None:  # the first call: the start pose's sensors go out
+                readings = self.sim.sensors()
+            elif self._reset_requested:
+                self._do_reset()  # publishes the new run's sensors
+                self._next_deadline = self._waiting_since = now
+                return 0.0
+            elif self._paused:
+                self._next_deadline = self._waiting_since = now
+                return 0.05
+            elif self.clock_mode == "lockstep":
+                if not self._lockstep_ready():
+                    remaining = self._waiting_since + self.lockstep_timeout - now
+                    if remaining > 0.0:
+                        return remaining
+                    self._lockstep_timeouts += 1
+                readings = self._advance()
+            elif now < self._next_deadline:
+                return self._next_deadline - now
+            else:
+                readings = self._advance()
+        self._publish(readings)
+        if self._next_deadline is None:
+            self._next_deadline = now
+        self._next_deadline += self._period
+        after = time.monotonic()
+        self._waiting_since = after
+        if self.clock_mode == "realtime" and after > self._next_deadline:
+            self._overruns += 1
+            if after - self._next_deadline > 0.1:  # far behind (e.g. suspended): do not try to catch up
+                self._next_deadline = after
+        return 0.0 if self.clock_mode == "lockstep" else max(0.0, self._next_deadline - after)
 
     def _lockstep_ready(self) -> bool:
         """Lockstep wait condition (lock held): this step's command arrived, or stop/reset."""
@@ -405,8 +457,9 @@ class SimBridgeNode(Node):
         with self._lock:
             self._running = False
             self._lock.notify_all()
-        self._thread.join(timeout=2.0)
-        if self._thread.is_alive():  # never pull PyBullet from under a running step
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        if self._thread is not None and self._thread.is_alive():  # never pull PyBullet from under a step
             self.get_logger().error("simulation thread did not stop within 2 s; leaving PyBullet open")
         else:
             self.sim.close()
