@@ -273,3 +273,46 @@ def test_realtime_factor_and_recorder_parameters_checked(rclpy_context, name, va
     with pytest.raises(ConfigError, match=name):
         SimBridgeNode(context=rclpy_context, parameter_overrides=[Parameter(name, value=value),
                                                                   Parameter("flight_recorder_dir", value="/tmp")])
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("clock_mode", ["lockstep", "realtime"])
+def test_stepped_by_the_executor_thread_one_sensor_set_per_step(rclpy_context, clock_mode):
+    """own_thread=False (the composed control_chain): the executor's thread steps the sim through
+    poll(). Lockstep: each step once its command is in, stamps once each and in order; realtime:
+    poll never asks for a wait longer than a step (0.002 s / real_time_factor)."""
+    overrides = [Parameter("clock_mode", value=clock_mode), Parameter("lockstep_timeout", value=0.2),
+                 Parameter("settle_time", value=0.3), Parameter("real_time_factor", value=0.5)]
+    bridge = SimBridgeNode(own_thread=False, context=rclpy_context, parameter_overrides=overrides)
+    hold = JointHoldNode(context=rclpy_context)
+    listener = Node("listener", context=rclpy_context)
+    stamps: list[int] = []
+    listener.create_subscription(JointState, "/joint_states", lambda m: stamps.append(ns_from_stamp(m.header.stamp)),
+                                 CONTROL_QOS)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    for n in (bridge, hold):
+        executor.add_node(n)
+    listen = SingleThreadedExecutor(context=rclpy_context)  # its own: the step's callbacks never starve it
+    listen.add_node(listener)
+    waits = []
+    try:
+        for _ in range(20000):
+            if len(stamps) >= 300:
+                break
+            waits.append(bridge.poll())
+            executor.spin_once(timeout_sec=waits[-1])
+            listen.spin_once(timeout_sec=0.0)
+    finally:
+        listen.shutdown()
+        executor.shutdown()
+        bridge.shutdown()
+        for n in (bridge, hold, listener):
+            n.destroy_node()
+    assert len(stamps) >= 300 and bridge.watchdog.accepted >= 200
+    if clock_mode == "lockstep":
+        tail = np.diff(stamps[-200:])  # (a keep-last-1 listener may miss one: no repeats, in order)
+        assert np.all(tail > 0) and np.all(tail % STEP_NS == 0), f"repeats in lockstep stamps: {set(tail.tolist())}"
+        assert bridge._uncommanded_steps <= bridge._lockstep_timeouts  # a step waits for its command
+        assert max(waits) <= 0.2 + 1e-9  # never past lockstep_timeout
+    else:
+        assert max(waits) <= 0.004 + 1e-9 and bridge.sim.steps >= 250
