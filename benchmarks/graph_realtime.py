@@ -219,7 +219,8 @@ def main() -> None:
     for r in rows:
         print("  ".join(f"{cell:<{w}}" for cell, w in zip(r, widths, strict=True)))
     print(json.dumps({
-        "forms": results, "policy": args.policy, "top_speed_mps": args.top_speed, "acceleration_mps2": args.acceleration,
+        "forms": results, "policy": args.policy, "top_speed_mps": args.top_speed,
+        "acceleration_mps2": args.acceleration,
         "fifo_priorities": fifo, "dds_transports": args.dds_transports or "fastdds-default",
         "real_time_factor": args.real_time_factor,
     }))

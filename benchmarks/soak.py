@@ -1,6 +1,7 @@
 """Soak: the whole node graph in realtime for minutes with a varying speed command.
 
-Starts sim_bridge (realtime, or ``--clock lockstep``), convex_mpc and gait_policy as processes (realtime: convex_mpc
+Starts sim_bridge (realtime, or ``--clock lockstep``), convex_mpc and gait_policy (``--form composed``, the
+default: sim_bridge and convex_mpc in one control_chain process; ``separate``: a process each; realtime: convex_mpc
 with config/convex_mpc_realtime.yaml, which embeds the estimator; lockstep: with a state_estimator process, or with
 ``--controller-param embedded_estimator:=true`` without) and, from a light probe that
 listens to /diagnostics only, reports every ``--interval`` seconds of wall time, counted from the
@@ -48,6 +49,8 @@ def main() -> None:
     parser.add_argument("--segment", type=float, default=20.0, help="seconds per commanded speed")
     parser.add_argument("--yaw-rate", type=float, default=0.3, help="commanded turning rate [rad/s]")
     parser.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime", help="sim bridge clock mode")
+    parser.add_argument("--form", choices=("composed", "separate"), default="composed",
+                        help="composed: bridge and controller in one control_chain process (bring-up's default)")
     parser.add_argument("--controller-param", action="append", default=[], metavar="NAME:=VALUE",
                         help="extra convex_mpc parameter, e.g. embedded_estimator:=true (repeatable)")
     add_scheduling_options(parser)
@@ -68,7 +71,8 @@ def main() -> None:
     from rclpy.node import Node
 
     graph = Graph(Path(tempfile.mkdtemp(prefix="soak_")))
-    graph.start_stack(args.clock, 0.5, *args.controller_param, real_time_factor=args.real_time_factor)
+    graph.start_stack(args.clock, 0.5, *args.controller_param, real_time_factor=args.real_time_factor,
+                      composed_chain=args.form == "composed")
     apply_fifo(graph, fifo)
     rclpy.init(args=[])  # not sys.argv: --controller-param values are no ROS arguments
     node = Node("soak_probe")
@@ -151,7 +155,7 @@ def main() -> None:
                                           for k, v in growth.items()))
     records = graph.fall_records()
     print(json.dumps({
-        "duration_s": rows[-1]["t_s"] if rows else 0.0, "missed_deadline_fraction": missed_total,
+        "form": args.form, "duration_s": rows[-1]["t_s"] if rows else 0.0, "missed_deadline_fraction": missed_total,
         "missed_deadline_fraction_by_interval": [r["missed_deadline_fraction"] for r in rows],
         "watchdog_dampings_by_interval": [r["watchdog_dampings"] for r in rows],
         "falls": falls, "lowest_base_height_m": lowest_overall,
