@@ -155,6 +155,16 @@ def test_the_nodes_a_robot_runs_do_not_import_pybullet(module):
     assert not {m for m in imported if m.split(".")[0] in ("pybullet", "pybullet_utils")}, module
 
 
+def test_the_composed_hardware_chain_does_not_import_pybullet():
+    """control_chain --bridge hardware loads hw_bridge, state_estimator and convex_mpc, not the sim."""
+    code = "from a1_bringup.control_chain import chain_nodes; chain_nodes('hardware', True)"
+    report = subprocess.run([sys.executable, "-X", "importtime", "-c", code],
+                            capture_output=True, text=True, check=True).stderr
+    imported = {line.split("|")[-1].strip() for line in report.splitlines() if line.startswith("import time:")}
+    assert {"a1_hw_bridge.node", "state_estimator_node.node", "convex_mpc_node.node"} <= imported
+    assert not {m for m in imported if m.split(".")[0] in ("pybullet", "pybullet_utils")}
+
+
 def test_every_topic_of_every_node_has_the_contracts_type_and_qos(stack_nodes):
     _, nodes = stack_nodes
     by_name = {"/" + t.name: t for t in contract.TOPICS}  # the nodes run in the root namespace here

@@ -32,6 +32,8 @@ import yaml
 from rclpy.parameter import Parameter
 from rclpy.utilities import remove_ros_args
 
+from a1_bringup.graph import parse_setting
+
 CHAIN_BRIDGES = ("sim", "hardware")
 
 
@@ -59,12 +61,7 @@ def parse_settings(settings: list[str], names: list[str]) -> dict[str, list[Para
     """``node.param=value`` items as each node's parameter overrides; ValueError naming the item."""
     overrides: dict[str, list[Parameter]] = {name: [] for name in names}
     for item in settings:
-        target, sep, text = item.partition("=")
-        node, dot, param = target.partition(".")
-        if not sep or not dot or not param:
-            raise ValueError(f"--set must look like node.parameter=value, got {item!r}")
-        if node not in overrides:
-            raise ValueError(f"--set {item!r}: no node {node!r} in this chain; nodes: {names}")
+        node, param, text = parse_setting(item, names, "chain")
         try:
             value = yaml.safe_load(text) if text else ""
             overrides[node].append(Parameter(param, value=value))

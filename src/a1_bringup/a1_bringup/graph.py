@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -105,16 +106,22 @@ def composed(nodes: list[NodeSpec]) -> list[NodeSpec]:
     return [*nodes[:first], chain, *(n for n in nodes[first:] if n.name not in CHAIN)]
 
 
+def parse_setting(item: str, nodes: Collection[str], where: str = "graph") -> tuple[str, str, str]:
+    """(node, parameter, value) of a ``node.param=value`` item; ValueError naming a bad one."""
+    target, sep, value = item.partition("=")
+    node, dot, param = target.partition(".")
+    if not sep or not dot or not param:
+        raise ValueError(f"--set must look like node.parameter=value, got {item!r}")
+    if node not in nodes:
+        raise ValueError(f"--set {item!r}: no node {node!r} in this {where}; nodes: {sorted(nodes)}")
+    return node, param, value
+
+
 def with_settings(nodes: list[NodeSpec], settings: list[str]) -> list[NodeSpec]:
     """``node.param=value`` settings applied to ``nodes``; ValueError naming a node not in the graph."""
     by_name = {n.name: n for n in nodes}
     for item in settings:
-        target, sep, value = item.partition("=")
-        node, dot, param = target.partition(".")
-        if not sep or not dot or not param:
-            raise ValueError(f"--set must look like node.parameter=value, got {item!r}")
-        if node not in by_name:
-            raise ValueError(f"--set {item!r}: no node {node!r} in this graph; nodes: {sorted(by_name)}")
+        node, param, value = parse_setting(item, by_name)
         by_name[node].params[param] = value
     return nodes
 
