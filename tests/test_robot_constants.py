@@ -65,6 +65,17 @@ def test_node_parameter_file_sections():
         load_node_parameters(default_config_path().parent / "a1_sim_bridge.yaml", "other_node")
 
 
+def test_exponents_without_a_dot_are_floats_as_in_ros_parameter_files(tmp_path):
+    """``mpc_force_weight: 1e-5`` is a float to ROS 2's --params-file parser; PyYAML's YAML 1.1
+    rules alone would leave it the string '1e-5' for the in-process tools (eval_policy, train_es)."""
+    path = tmp_path / "convex_mpc.yaml"
+    path.write_text("/**/convex_mpc:\n  ros__parameters:\n    mpc_force_weight: 1e-5\n    a: [2E3, -1e-2, 3]\n"
+                    "    b: x1e5\n")
+    params = load_node_parameters(path, "convex_mpc")
+    assert params == {"mpc_force_weight": 1e-5, "a": [2000.0, -0.01, 3], "b": "x1e5"}
+    assert isinstance(params["mpc_force_weight"], float)
+
+
 def test_require_range_message():
     assert require_range("f", 2, 0, 4, low_open=True) == 2.0
     with pytest.raises(ConfigError, match=r"f must be in \(0, 4\]"):

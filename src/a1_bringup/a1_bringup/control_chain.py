@@ -29,6 +29,7 @@ from collections.abc import Callable
 from typing import Any
 
 import yaml
+from a1_common.config import parse_yaml
 from rclpy.parameter import Parameter
 from rclpy.utilities import remove_ros_args
 
@@ -63,7 +64,7 @@ def parse_settings(settings: list[str], names: list[str]) -> dict[str, list[Para
     for item in settings:
         node, param, text = parse_setting(item, names, "chain")
         try:
-            value = yaml.safe_load(text) if text else ""
+            value = parse_yaml(text) if text else ""
             overrides[node].append(Parameter(param, value=value))
         except (yaml.YAMLError, TypeError) as exc:
             raise ValueError(f"--set {item!r}: not a parameter value: {exc}") from None

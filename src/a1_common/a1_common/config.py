@@ -2,14 +2,15 @@
 
 Two kinds of file live in ``config/``: plain YAML (the robot constants) and ROS 2 parameter
 files (``<node>: ros__parameters: {...}``), which the nodes get through ``--params-file`` and the
-library cores (tests, trainer) read with :func:`load_node_parameters`. Both are read with
-``yaml.safe_load``; unknown keys are errors, so a typo never silently falls back to a default.
+library cores (tests, trainer) read with :func:`load_node_parameters`. Both are read with a safe
+loader (:func:`parse_yaml`); unknown keys are errors, so a typo never silently falls back to a default.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import os
+import re
 from collections.abc import Collection, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -23,6 +24,22 @@ class ConfigError(ValueError):
     """A configuration file or value is missing, malformed or out of range."""
 
 
+class _Loader(yaml.SafeLoader):
+    """yaml.SafeLoader reading ``1e-5`` as a float, as ROS 2's parameter-file parser does (PyYAML's
+    YAML 1.1 rules want ``1.0e-5`` and would leave ``1e-5`` a string)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"))
+
+
+def parse_yaml(text: str) -> Any:
+    """YAML text to Python values (safe: no objects), numbers as ROS 2 reads them."""
+    return yaml.load(text, Loader=_Loader)
+
+
 def load_yaml_mapping(path: str | os.PathLike, allowed_keys: set[str] | None = None) -> dict[str, Any]:
     """Load a YAML file whose top level is a mapping; reject unknown keys if a set is given."""
     path = Path(path)
@@ -33,7 +50,7 @@ def load_yaml_mapping(path: str | os.PathLike, allowed_keys: set[str] | None = N
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     try:
-        data = yaml.safe_load(text)
+        data = parse_yaml(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from None
     except RecursionError:

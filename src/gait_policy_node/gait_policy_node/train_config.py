@@ -22,6 +22,7 @@ from a1_common.config import (
     config_dir,
     dataclass_from_mapping,
     load_yaml_mapping,
+    parse_yaml,
     require_integer,
     require_range,
 )
@@ -250,7 +251,7 @@ def parse_override(text: str) -> tuple[list[str], object]:
     if not path:
         raise ConfigError(f"override {text!r} has no key")
     try:
-        value = yaml.safe_load(raw)
+        value = parse_yaml(raw)
     except yaml.YAMLError as exc:
         raise ConfigError(f"override {key}: value {raw!r} is not valid YAML: {exc}") from None
     return path, value
