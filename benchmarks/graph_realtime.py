@@ -16,6 +16,8 @@ subscribes to nothing else, so it takes no CPU from the graph it measures):
 - the bridge's achieved step rate, and whether the robot stayed up (lowest base height);
 - each process's CPU use over the window, in cores, its worker processes included (from /proc:
   where the 2 cores go).
+``--bridge virtual``: the hardware bridge against the virtual A1 over UDP (the robot process
+apart; composed: hw_bridge and controller in one process), read from the hardware bridge's counts.
 ``--joiners N`` starts and stops a separate subscriber process on /joint_states N times during the
 window (a user's ``ros2 topic echo``: a new DDS participant joining and leaving the graph).
 Goals (issue 26): under 1 % missed deadlines and latency p99 under 1.5 ms for 60 s at full speed,
@@ -78,8 +80,13 @@ def measure(form: str, args: argparse.Namespace, fifo: dict[str, int]) -> dict:
     from rclpy.node import Node
 
     graph = Graph(Path(tempfile.mkdtemp(prefix=f"graph_realtime_{form}_")))
-    graph.start_stack("realtime", 0.5, *args.controller_param, real_time_factor=args.real_time_factor,
-                      policy_params=(f"policy:={args.policy}",), composed_chain=form == "composed")
+    policy = (f"policy:={args.policy}",)
+    if args.bridge == "sim":
+        graph.start_stack("realtime", 0.5, *args.controller_param, real_time_factor=args.real_time_factor,
+                          policy_params=policy, composed_chain=form == "composed")
+    else:  # hw_bridge <-UDP-> virtual_a1: the hardware bridge's own counts, the robot's lowest base
+        graph.start_hil("realtime", composed_chain=form == "composed", policy_params=policy,
+                        controller_params=tuple(args.controller_param))
     apply_fifo(graph, fifo)
     rclpy.init(args=[])  # not sys.argv: --controller-param values are no ROS arguments
     node = Node("realtime_probe")
@@ -87,12 +94,20 @@ def measure(form: str, args: argparse.Namespace, fifo: dict[str, int]) -> dict:
     controller: dict[str, str] = {}
     started = time.monotonic()
 
+    robot: dict[str, str] = {}
+
     def on_diagnostics(msg: DiagnosticArray) -> None:
         for status in msg.status:
             values = {kv.key: kv.value for kv in status.values}
             if status.name == "convex_mpc":
                 controller.update(values)
-            elif status.name == "a1_sim_bridge":
+            elif status.name == "virtual_a1":
+                robot.update(values)
+            elif status.name == "a1_hw_bridge" and "sends" in values:  # as the sim bridge names them
+                values = {**values, "steps": values["sends"], "uncommanded_steps": values["uncommanded_sends"],
+                          "lowest_base_height_m": robot.get("lowest_base_height_m", "n/a")}
+                status.name = "a1_sim_bridge"
+            if status.name == "a1_sim_bridge":
                 if reports:  # one line a second: where a run goes wrong, and when
                     steps = int(values["steps"]) - int(reports[-1]["steps"])
                     missed = int(values["uncommanded_steps"]) - int(reports[-1]["uncommanded_steps"])
@@ -176,6 +191,8 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="measurement window, wall time [s]")
     parser.add_argument("--form", choices=(*FORMS, "both"), default="composed",
                         help="composed (bring-up's realtime default), separate (a process a node), or both")
+    parser.add_argument("--bridge", choices=("sim", "virtual"), default="sim",
+                        help="sim: the sim bridge; virtual: the hardware bridge and a virtual A1 over UDP")
     parser.add_argument("--top-speed", type=float, default=2.5, help="commanded speed held after the ramp [m/s]")
     parser.add_argument("--acceleration", type=float, default=1.0, help="of the command's ramp [m/s^2]")
     parser.add_argument("--joiners", type=int, default=0,
@@ -219,7 +236,7 @@ def main() -> None:
     for r in rows:
         print("  ".join(f"{cell:<{w}}" for cell, w in zip(r, widths, strict=True)))
     print(json.dumps({
-        "forms": results, "policy": args.policy, "top_speed_mps": args.top_speed,
+        "forms": results, "bridge": args.bridge, "policy": args.policy, "top_speed_mps": args.top_speed,
         "acceleration_mps2": args.acceleration,
         "fifo_priorities": fifo, "dds_transports": args.dds_transports or "fastdds-default",
         "real_time_factor": args.real_time_factor,

@@ -6,6 +6,7 @@ import argparse
 import itertools
 import os
 import signal
+import socket
 import subprocess
 from pathlib import Path
 
@@ -113,6 +114,24 @@ class Graph:
         for node in composed(nodes) if composed_chain else nodes:
             self.start(node.name, node.package, node.executable, *node.arguments(CONFIG), nodes=node.nodes)
 
+    def start_hil(self, clock: str = "lockstep", packet_loss: float = 0.0, lockstep_timeout: float = 0.5,
+                  composed_chain: bool = False, policy_params: tuple[str, ...] = (),
+                  controller_params: tuple[str, ...] = ()) -> None:
+        """The graph a1_bringup.graph describes for the virtual bridge (hw_bridge <-UDP-> virtual_a1)
+        on a free loopback port; ``composed_chain``: hw_bridge and controller in one process."""
+        port = free_udp_port()
+        extra = {"virtual_a1": {"port": port, "packet_loss": packet_loss, "loss_seed": 7, "settle_time": 0.0},
+                 "hw_bridge": {"robot_port": port, "local_port": 0, "state_timeout": 0.02,
+                               "lockstep_timeout": lockstep_timeout},
+                 "convex_mpc": dict(p.split(":=", 1) for p in controller_params),
+                 "gait_policy": dict(p.split(":=", 1) for p in policy_params)}
+        self.realtime = clock == "realtime"
+        nodes = describe(clock, "virtual")
+        for node in nodes:
+            node.params.update({k: str(v) for k, v in extra.get(node.name, {}).items()})
+        for node in composed(nodes) if composed_chain else nodes:
+            self.start(node.name, node.package, node.executable, *node.arguments(CONFIG), nodes=node.nodes)
+
     def start_controller(self, *params: str) -> None:
         """The controller as the graph describes it for this graph's clock (after a kill, or next to
         a hand-started bridge), with extra ``name:=value`` parameters."""
@@ -181,6 +200,12 @@ def set_sim_paused(executor, node, paused: bool) -> None:
     future = client.call_async(SetBool.Request(data=paused))
     assert spin_until(executor, future.done, 10.0) and future.result().success
     node.destroy_client(client)
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def run_until(executor, watcher, graph: Graph, sim_time: float, wall_timeout: float = 240.0) -> None:

@@ -10,38 +10,15 @@ stand it up before the controller gets the sensors.
 from __future__ import annotations
 
 import json
-import socket
 
 import numpy as np
 import pytest
-from a1_bringup.graph import composed, describe
 from diagnostic_msgs.msg import DiagnosticArray
-from graph_helpers import CONFIG, DAMPING_KD, MOTOR_TORQUE_LIMIT, Graph, run_until
+from graph_helpers import DAMPING_KD, MOTOR_TORQUE_LIMIT, run_until
 from ros_helpers import spin_until
 from test_graph_e2e import graph  # noqa: F401 (the fixture)
 
 STAND_UP_DONE = 2.5  # [s] robot time: bridge stand-up 1.5 s, then the controller's 1 s stand ramp
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def start_hil_graph(g: Graph, packet_loss: float, lockstep_timeout: float = 0.5, clock: str = "lockstep",
-                    composed_chain: bool = False) -> None:
-    """The graph a1_bringup.graph describes for the virtual bridge (in lockstep unless ``clock``
-    says otherwise), on a free port; ``composed_chain``: hw_bridge and controller in one process."""
-    port = free_udp_port()
-    extra = {"virtual_a1": {"port": port, "packet_loss": packet_loss, "loss_seed": 7, "settle_time": 0.0},
-             "hw_bridge": {"robot_port": port, "local_port": 0, "state_timeout": 0.02,
-                           "lockstep_timeout": lockstep_timeout}}
-    nodes = describe(clock, "virtual")
-    for node in nodes:
-        node.params.update({k: str(v) for k, v in extra.get(node.name, {}).items()})
-    for node in composed(nodes) if composed_chain else nodes:
-        g.start(node.name, node.package, node.executable, *node.arguments(CONFIG), nodes=node.nodes)
 
 
 def first_damped_tick(joints: list[tuple[float, np.ndarray, np.ndarray]], after: float) -> float | None:
@@ -77,7 +54,7 @@ def hil(request):
 @pytest.mark.slow
 def test_hil_walks_1_mps_then_damps_within_50_ms_of_controller_death(hil):
     g, watcher, executor, diagnostics = hil
-    start_hil_graph(g, packet_loss=0.0, lockstep_timeout=0.05)
+    g.start_hil("lockstep", packet_loss=0.0, lockstep_timeout=0.05)
     watcher.speed = 1.0
     run_until(executor, watcher, g, 7.5, wall_timeout=300)
     assert watcher.lowest() > 0.18, "fell"
@@ -109,7 +86,7 @@ def test_hil_walks_1_mps_then_damps_within_50_ms_of_controller_death(hil):
 @pytest.mark.slow
 def test_hil_5_percent_packet_loss_does_not_fall(hil):
     g, watcher, executor, diagnostics = hil
-    start_hil_graph(g, packet_loss=0.05)
+    g.start_hil("lockstep", packet_loss=0.05)
     watcher.speed = 1.0
     run_until(executor, watcher, g, 6.0, wall_timeout=300)  # 2.5 s at 1.0 m/s (reached at about 3.5 s)
     assert watcher.lowest() > 0.18, "fell"
@@ -136,7 +113,7 @@ def test_hil_realtime_composed_chain_stands_up_and_the_robot_damps_when_it_is_ki
     datagrams: the robot, left without commands, damps its motors on its own after its
     command_loss_timeout (config/virtual_a1.yaml), as the real A1 is assumed to."""
     g, watcher, executor, diagnostics = hil
-    start_hil_graph(g, packet_loss=0.0, clock="realtime", composed_chain=True)
+    g.start_hil("realtime", composed_chain=True)
     assert sorted(g.procs) == ["control_chain", "gait_policy", "virtual_a1"]
     run_until(executor, watcher, g, STAND_UP_DONE + 1.0, wall_timeout=120)
     assert max(z for t, _, z in watcher.truth if t > STAND_UP_DONE - 1.0) > 0.24, "never stood up"

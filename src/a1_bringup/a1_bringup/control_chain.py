@@ -89,11 +89,14 @@ def main(args: list[str] | None = None) -> None:
     from a1_common.node_support import run_nodes
 
     factories = [functools.partial(cls, parameter_overrides=overrides[name]) for name, cls in nodes]
-    poll = None
     if options.bridge == "sim":  # the simulation steps in the executor's thread: one Python thread
         factories[0] = functools.partial(factories[0], own_thread=False)
-        poll = lambda created: created[0].poll()  # noqa: E731 (the bridge is created first)
-    run_nodes("control_chain", factories, argv, poll=poll)
+    run_nodes("control_chain", factories, argv, poll=_poll_sim if options.bridge == "sim" else None)
+
+
+def _poll_sim(nodes: list[Any]) -> float:
+    """Between the executor's waits: the sim bridge (created first) steps when due."""
+    return nodes[0].poll()
 
 
 if __name__ == "__main__":

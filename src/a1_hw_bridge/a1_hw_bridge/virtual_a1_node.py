@@ -45,6 +45,7 @@ class VirtualA1Node(Node):
         self.publish_ground_truth = bool(params["publish_ground_truth"])
         self.pub_truth = self.create_publisher(Odometry, contract.GROUND_TRUTH, CONTROL_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
+        self._lowest_base_height = float("inf")  # [m] since the last /diagnostics (ground truth)
         self.server = VirtualA1Server(self.robot, on_tick=self._on_tick)
         self.failure: Exception | None = None
         self.create_timer(1.0, self._publish_diagnostics)
@@ -68,10 +69,13 @@ class VirtualA1Node(Node):
         if self.publish_ground_truth:
             sim = self.robot.sim
             stamp = cv.stamp_from_ns(sim.steps * round(sim.config.time_step * 1e9))
-            self.pub_truth.publish(cv.ground_truth_msg(sim.ground_truth(), stamp))
+            truth = sim.ground_truth()
+            self._lowest_base_height = min(self._lowest_base_height, float(truth.base_position[2]))
+            self.pub_truth.publish(cv.ground_truth_msg(truth, stamp))
 
     def _publish_diagnostics(self) -> None:
         r = self.robot
+        lowest, self._lowest_base_height = self._lowest_base_height, float("inf")
         status = DiagnosticStatus(name="virtual_a1", hardware_id=f"{r.config.host}:{r.config.port}")
         status.level = DiagnosticStatus.OK if r.stats.accepted else DiagnosticStatus.WARN
         status.message = "commanded" if r.stats.accepted else "waiting for commands"
@@ -83,6 +87,7 @@ class VirtualA1Node(Node):
             "commands_lost_injected": c.commands_lost, "states_lost_injected": c.states_lost,
             "commands_refused": c.commands_refused, "last_refusal": r.last_error,
             "command_loss_fallbacks": c.command_loss_fallbacks, "realtime_overruns": self.server.pacer.overruns,
+            "lowest_base_height_m": f"{lowest:.3f}" if self.publish_ground_truth else "n/a",
         }
         self.pub_diag.publish(diagnostic_array(self, status, values))
 
