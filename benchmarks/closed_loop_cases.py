@@ -13,11 +13,13 @@ from __future__ import annotations
 import json
 
 import numpy as np
+from a1_common.command import VelocityCommand
 from a1_common.robot import a1
-from convex_mpc_node.controller import VelocityCommand
 from convex_mpc_node.energy import cost_of_transport
 from convex_mpc_node.gait import gait_for_speed, load_hand_tuned_gaits
-from gait_policy_node.rollout import ramp_profile, run_closed_loop
+from gait_policy_node.rollout import run_closed_loop
+
+from gait_policy_node import speed_profiles
 
 
 def main() -> None:
@@ -28,12 +30,12 @@ def main() -> None:
         return lambda t, c: gaits[name]
 
     cases = [
-        ("walk 0.5 m/s", fixed("walk"), ramp_profile(0.5), 10.0, 0.5),
-        ("slow trot 1.0 m/s", fixed("slow_trot"), ramp_profile(1.0), 10.0, 1.0),
-        ("rapid trot 1.5 m/s", fixed("rapid_trot"), ramp_profile(1.5), 10.0, 1.5),
-        ("rapid trot 2.0 m/s", fixed("rapid_trot"), ramp_profile(2.0), 10.0, 2.0),
-        ("fly trot 2.5 m/s", fixed("fly_trot"), ramp_profile(2.5), 10.0, 2.5),
-        ("accel 0-2.5, scheduled", lambda t, c: gait_for_speed(c.vx, gaits), ramp_profile(2.5), 20.0, 2.5),
+        ("walk 0.5 m/s", fixed("walk"), speed_profiles.ramp(0.5), 10.0, 0.5),
+        ("slow trot 1.0 m/s", fixed("slow_trot"), speed_profiles.ramp(1.0), 10.0, 1.0),
+        ("rapid trot 1.5 m/s", fixed("rapid_trot"), speed_profiles.ramp(1.5), 10.0, 1.5),
+        ("rapid trot 2.0 m/s", fixed("rapid_trot"), speed_profiles.ramp(2.0), 10.0, 2.0),
+        ("fly trot 2.5 m/s", fixed("fly_trot"), speed_profiles.ramp(2.5), 10.0, 2.5),
+        ("accel 0-2.5, scheduled", lambda t, c: gait_for_speed(c.vx, gaits), speed_profiles.ramp(2.5), 20.0, 2.5),
         ("trot, yaw 0.5 rad/s", fixed("slow_trot"), lambda t: VelocityCommand(yaw_rate=0.5), 10.0, 0.0),
         ("trot, lateral 0.3 m/s", fixed("slow_trot"), lambda t: VelocityCommand(vy=0.3), 10.0, 0.0),
         ("standing (trot in place)", fixed("slow_trot"), lambda t: VelocityCommand(), 10.0, 0.0),

@@ -17,7 +17,9 @@ import json
 
 import numpy as np
 from convex_mpc_node.gait import load_hand_tuned_gaits
-from gait_policy_node.rollout import ramp_profile, run_closed_loop
+from gait_policy_node.rollout import run_closed_loop
+
+from gait_policy_node import speed_profiles
 
 CASES = (("slow_trot", 1.0), ("fly_trot", 2.5), ("walk", 0.5))
 
@@ -34,7 +36,7 @@ def main() -> None:
     print("-" * len(header))
     first = None
     for name, speed in CASES:
-        traj = run_closed_loop(lambda t, c, n=name: gaits[n], ramp_profile(speed), args.seconds)
+        traj = run_closed_loop(lambda t, c, n=name: gaits[n], speed_profiles.ramp(speed), args.seconds)
         controller = np.asarray(traj.controller_time)
         physics = np.asarray(traj.physics_time)
         estimator = np.asarray(traj.estimator_time)

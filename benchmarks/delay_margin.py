@@ -27,7 +27,9 @@ import json
 
 from convex_mpc_node.controller import load_controller_config
 from convex_mpc_node.gait import gait_for_speed, load_hand_tuned_gaits
-from gait_policy_node.rollout import ramp_profile, run_with_late_commands
+from gait_policy_node.rollout import run_with_late_commands
+
+from gait_policy_node import speed_profiles
 
 SPEED = 1.5  # [m/s]
 FAULT_AT = 3.0  # [s] sim time: 1.5 s of ramp, 1.5 s of steady trot
@@ -41,7 +43,7 @@ def run(mpc_period: int, force_weight: float, latency: float = 0.0, stall: float
     config = dataclasses.replace(base, mpc_period_steps=mpc_period,
                                  mpc=dataclasses.replace(base.mpc, force_weight=force_weight))
     gaits = load_hand_tuned_gaits()
-    return run_with_late_commands(lambda t, c: gait_for_speed(c.vx, gaits), ramp_profile(SPEED), FAULT_AT + HOLD,
+    return run_with_late_commands(lambda t, c: gait_for_speed(c.vx, gaits), speed_profiles.ramp(SPEED), FAULT_AT + HOLD,
                                   controller_config=config, fault_at=FAULT_AT, latency=latency, stall=stall,
                                   stall_every=STALL_EVERY)
 

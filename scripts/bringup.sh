@@ -44,8 +44,6 @@ check_choice bringup.sh --clock "$CLOCK" lockstep realtime
 check_choice bringup.sh --bridge "$BRIDGE" sim hardware virtual
 FORM=${FORM:-composed}
 check_choice bringup.sh --form "$FORM" composed separate
-[[ -z "${GS_NAMESPACE:-}" || "$GS_NAMESPACE" =~ ^(/[A-Za-z_][A-Za-z0-9_]*)+$ ]] \
-  || { echo "bringup.sh: --namespace must look like /a1_2 (letters, digits, _), got '$GS_NAMESPACE'" >&2; exit 2; }
 if [ "$BRIDGE" = hardware ]; then
   [ "$CLOCK" = realtime ] || { echo "bringup.sh: --bridge hardware needs --clock realtime (a real robot does not wait for the controller)" >&2; exit 2; }
   [ "$WORLD_GIVEN" = 0 ] || { echo "bringup.sh: --world applies to --bridge sim and virtual, not to the real robot" >&2; exit 2; }
@@ -53,6 +51,7 @@ fi
 resolve_policy bringup.sh "$POLICY"
 # shellcheck disable=SC1091
 source "$ROOT/scripts/env.sh"
+check_namespace
 LOGDIR="$ROOT/log/bringup/$(date +%Y%m%d-%H%M%S)${GS_NAMESPACE:+${GS_NAMESPACE//\//_}}"
 mkdir -p "$LOGDIR"
 trap 'stop_nodes; [ "$RECORD" = 1 ] && recorder_summary "$LOGDIR"' EXIT

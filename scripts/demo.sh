@@ -54,12 +54,10 @@ if [ "$RECORD" = 1 ]; then
   rm -rf "$LOGDIR/bag"  # the demo's logs are the last run's
   start_recorder "$LOGDIR" "$LOGDIR/bag" "$CLOCK"
 fi
-start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY" sim "$FORM"
-# The ramp starts after 1.5 s: the controller stands up first (stand_time in config/convex_mpc.yaml).
-start_node gait_policy_node velocity_command "$LOGDIR" --ros-args -p use_sim_time:=true -p profile:=ramp \
-  -p speed:=2.5 -p acceleration:=1.0 -p start_delay:=1.5
-# The report runs in the foreground of a `wait`, so Ctrl-C / SIGTERM reach the traps at once, and
-# under a wall-clock cap, so a graph that stalls cannot hang the demo.
+# The report starts before the graph: a lockstep graph does not wait for it, and a report that
+# subscribed late missed the start of the ramp. It runs in the foreground of a `wait` below, so
+# Ctrl-C / SIGTERM reach the traps at once, and under a wall-clock cap, so a graph that stalls
+# cannot hang the demo.
 cap=$(awk "BEGIN{print int($DURATION * 10 + 120)}")
 _node_command gait_policy_node demo_report
 setsid timeout "$cap" "${_GS_CMD[@]}" --ros-args -p use_sim_time:=true \
@@ -67,6 +65,10 @@ setsid timeout "$cap" "${_GS_CMD[@]}" --ros-args -p use_sim_time:=true \
   -p output:="$LOGDIR/gait_diagram.png" &
 report=$!
 _GS_PIDS+=("$report")  # stopped with the others on exit
+start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY" sim "$FORM"
+# The ramp starts after 1.5 s: the controller stands up first (stand_time in config/convex_mpc.yaml).
+start_node gait_policy_node velocity_command "$LOGDIR" --ros-args -p use_sim_time:=true -p profile:=ramp \
+  -p speed:=2.5 -p acceleration:=1.0 -p start_delay:=1.5
 while kill -0 "$report" 2>/dev/null; do
   if ! check_nodes; then
     tail -n 20 "$LOGDIR"/*.log >&2

@@ -11,7 +11,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
-from a1_bringup.graph import composed, describe
+from a1_bringup.graph import composed, describe, namespace_remaps
 from a1_common.config import load_node_parameters
 from a1_common.robot import a1
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -70,8 +70,7 @@ class Graph:
         # Node-scoped remaps: in a composed process only the publishing node's topic moves.
         remaps = [a for topic in self.faults if self.publishers[topic] in (nodes or (name,))
                   for a in ("-r", f"{self.publishers[topic]}:{topic}:=/fault_in{topic}")]
-        if self.namespace:  # the graph's own sim time: its bridge publishes <namespace>/clock
-            remaps += ["-r", f"__ns:={self.namespace}", "-r", "/clock:=clock"]
+        remaps += namespace_remaps(self.namespace)
         if remaps:
             args = (*args, *([] if "--ros-args" in args else ["--ros-args"]), *remaps)
         self.commands[name] = [executable(pkg, exe), *args]
@@ -104,15 +103,10 @@ class Graph:
                      "-p", f"message_type:={message_type}",
                      *[a for key, value in params.items() for a in ("-p", f"{key}:={value}")]]
             self.start(name, "fault_injection", "fault_relay", *relay)
-        extra = {"sim_bridge": {"lockstep_timeout": lockstep_timeout, "real_time_factor": real_time_factor,
-                                "flight_recorder_dir": self.log_dir},  # a fall: its last seconds, see fall_records
-                 "convex_mpc": dict(p.split(":=", 1) for p in controller_params),
-                 "gait_policy": dict(p.split(":=", 1) for p in policy_params)}
-        nodes = describe(clock, "sim", embedded_estimator=embedded)
-        for node in nodes:
-            node.params.update({k: str(v) for k, v in extra.get(node.name, {}).items()})
-        for node in composed(nodes) if composed_chain else nodes:
-            self.start(node.name, node.package, node.executable, *node.arguments(CONFIG), nodes=node.nodes)
+        bridge = {"sim_bridge": {"lockstep_timeout": lockstep_timeout, "real_time_factor": real_time_factor,
+                                 "flight_recorder_dir": self.log_dir}}  # a fall: its last seconds, see fall_records
+        self._start_described(describe(clock, "sim", embedded_estimator=embedded), bridge, controller_params,
+                              policy_params, composed_chain)
 
     def start_hil(self, clock: str = "lockstep", packet_loss: float = 0.0, lockstep_timeout: float = 0.5,
                   composed_chain: bool = False, policy_params: tuple[str, ...] = (),
@@ -120,13 +114,18 @@ class Graph:
         """The graph a1_bringup.graph describes for the virtual bridge (hw_bridge <-UDP-> virtual_a1)
         on a free loopback port; ``composed_chain``: hw_bridge and controller in one process."""
         port = free_udp_port()
-        extra = {"virtual_a1": {"port": port, "packet_loss": packet_loss, "loss_seed": 7, "settle_time": 0.0},
-                 "hw_bridge": {"robot_port": port, "local_port": 0, "state_timeout": 0.02,
-                               "lockstep_timeout": lockstep_timeout},
-                 "convex_mpc": dict(p.split(":=", 1) for p in controller_params),
-                 "gait_policy": dict(p.split(":=", 1) for p in policy_params)}
+        bridge = {"virtual_a1": {"port": port, "packet_loss": packet_loss, "loss_seed": 7, "settle_time": 0.0},
+                  "hw_bridge": {"robot_port": port, "local_port": 0, "state_timeout": 0.02,
+                                "lockstep_timeout": lockstep_timeout}}
         self.realtime = clock == "realtime"
-        nodes = describe(clock, "virtual")
+        self._start_described(describe(clock, "virtual"), bridge, controller_params, policy_params, composed_chain)
+
+    def _start_described(self, nodes: list, bridge: dict[str, dict], controller_params: tuple[str, ...],
+                         policy_params: tuple[str, ...], composed_chain: bool) -> None:
+        """Start a graph description with the ``bridge`` nodes' extra parameters and the controller's
+        and policy's ``name:=value`` ones; ``composed_chain``: in the composed form."""
+        extra = {**bridge, "convex_mpc": dict(p.split(":=", 1) for p in controller_params),
+                 "gait_policy": dict(p.split(":=", 1) for p in policy_params)}
         for node in nodes:
             node.params.update({k: str(v) for k, v in extra.get(node.name, {}).items()})
         for node in composed(nodes) if composed_chain else nodes:

@@ -6,7 +6,7 @@ import shlex
 
 import pytest
 from a1_bringup.control_chain import parse_settings
-from a1_bringup.graph import composed, describe, main, with_settings
+from a1_bringup.graph import composed, describe, main, namespace_remaps, with_settings
 from graph_helpers import CONFIG, ROOT
 
 
@@ -92,3 +92,18 @@ def test_chain_settings_are_typed_per_node_and_bad_ones_name_the_item():
         parse_settings(["gait_policy.policy=learned"], ["sim_bridge", "convex_mpc"])
     with pytest.raises(ValueError, match=r"node\.parameter=value"):
         parse_settings(["real_time_factor=0.5"], ["sim_bridge"])
+
+
+def test_the_namespace_rule_is_the_describers_for_graph_lines_and_tools_alike(capsys):
+    assert namespace_remaps("") == []
+    assert namespace_remaps("/a1_2") == ["-r", "__ns:=/a1_2", "-r", "/clock:=clock"]  # the graph's own sim time
+    for bad in ("a1_2", "/a1-2", "/", "/2a"):
+        with pytest.raises(ValueError, match="namespace must look like /a1_2"):
+            namespace_remaps(bad)
+    assert main(["--clock", "realtime", "--config", "config", "--namespace", "/a1_2"]) == 0
+    lines = [shlex.split(line) for line in capsys.readouterr().out.splitlines()]
+    assert lines and all(line[-4:] == namespace_remaps("/a1_2") for line in lines)
+    assert main(["--remaps-only", "--namespace", "/a1_2"]) == 0  # what scripts/lib/nodes.sh adds to a tool's node
+    assert shlex.split(capsys.readouterr().out) == namespace_remaps("/a1_2")
+    assert main(["--remaps-only", "--namespace", "a1_2"]) == 2
+    assert "namespace must look like /a1_2" in capsys.readouterr().err

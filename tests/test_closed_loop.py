@@ -24,7 +24,9 @@ from convex_mpc_node.controller import (
 )
 from convex_mpc_node.gait import gait_for_speed, load_hand_tuned_gaits
 from convex_mpc_node.swing import swing_curve
-from gait_policy_node.rollout import ClosedLoop, ramp_profile, run_closed_loop, run_with_late_commands
+from gait_policy_node.rollout import ClosedLoop, run_closed_loop, run_with_late_commands
+
+from gait_policy_node import speed_profiles
 
 GAITS = load_hand_tuned_gaits()
 CONFIG = config_dir()
@@ -47,7 +49,7 @@ def test_swing_curve_passes_through_its_three_points():
     [("walk", 0.5), ("slow_trot", 1.0), ("rapid_trot", 1.5), ("rapid_trot", 2.0), ("fly_trot", 2.5)],
 )
 def test_gait_tracks_speed_for_10_s(gait, speed):
-    traj = run_closed_loop(fixed(gait), ramp_profile(speed), 10.0)
+    traj = run_closed_loop(fixed(gait), speed_profiles.ramp(speed), 10.0)
     assert not traj.fell, f"{gait} at {speed} m/s fell at t={traj.fall_time}"
     vx = traj.mean_velocity(5.0)[0]
     assert vx == pytest.approx(speed, rel=0.10), f"mean v_x over the last 5 s: {vx:.3f} m/s"
@@ -57,7 +59,7 @@ def test_gait_tracks_speed_for_10_s(gait, speed):
 
 @pytest.mark.slow
 def test_paper_acceleration_profile_with_speed_scheduled_gaits():
-    traj = run_closed_loop(lambda t, c: gait_for_speed(c.vx, GAITS), ramp_profile(2.5, 1.0), 20.0)
+    traj = run_closed_loop(lambda t, c: gait_for_speed(c.vx, GAITS), speed_profiles.ramp(2.5, 1.0), 20.0)
     assert not traj.fell, f"fell at t={traj.fall_time}"
     rms, bias = traj.estimator_error(start=1.0)
     assert rms <= 0.15 and abs(bias) <= 0.05
@@ -91,7 +93,7 @@ def test_standing_still_does_not_drift():
 @pytest.mark.slow
 def test_controller_alone_on_ground_truth_velocity():
     """The controller without the estimator (isolates control from estimation problems)."""
-    traj = run_closed_loop(fixed("rapid_trot"), ramp_profile(1.5), 6.0, velocity_source="ground_truth")
+    traj = run_closed_loop(fixed("rapid_trot"), speed_profiles.ramp(1.5), 6.0, velocity_source="ground_truth")
     assert not traj.fell
     assert traj.mean_velocity(3.0)[0] == pytest.approx(1.5, rel=0.10)
 
@@ -155,7 +157,7 @@ def test_realtime_force_weight_walks_through_20_ms_of_command_latency():
     assert realtime.mpc.force_weight > lockstep_weight.mpc.force_weight
 
     def fall_time(config):
-        return run_with_late_commands(lambda t, c: gait_for_speed(c.vx, GAITS), ramp_profile(1.5), 6.0,
+        return run_with_late_commands(lambda t, c: gait_for_speed(c.vx, GAITS), speed_profiles.ramp(1.5), 6.0,
                                       controller_config=config, fault_at=3.0, latency=0.02)
 
     assert fall_time(realtime) is None
@@ -179,8 +181,10 @@ def test_injected_qp_failures_last_that_many_control_steps(mpc_async):
             loop.step(VelocityCommand())
             statuses.append((controller.solved_this_step, controller.last_solution.status))
         assert statuses == [(True, "injected failure")] * 7 and controller.mpc_fallbacks == 7
-        for _ in range(5):  # a worker's solve takes a step or a few to come back
+        for _ in range(200):  # a worker's solve takes a step or a few to come back (more on a busy machine)
             loop.step(VelocityCommand())
+            if controller.last_solution.solved:
+                break
         assert controller.last_solution.solved and controller.mpc_fallbacks == 7
         with pytest.raises(ConfigError, match=r"inject_qp_failures must be an integer in \[0, 1000000\]"):
             controller.inject_qp_failures(-1)
@@ -219,7 +223,7 @@ def test_flat_ground_has_no_end_at_100_m():
     p = sim._p  # fast-forward: put the robot 95 m out, as 40 s of running would
     position, orientation = p.getBasePositionAndOrientation(sim._body)
     p.resetBasePositionAndOrientation(sim._body, [95.0, 0.0, position[2]], orientation)
-    profile = ramp_profile(2.5)
+    profile = speed_profiles.ramp(2.5)
     try:
         for _ in range(round(8.0 / 0.002)):
             loop.step(profile(sim.time))

@@ -17,7 +17,9 @@ from pathlib import Path
 
 import numpy as np
 from convex_mpc_node.gait import load_hand_tuned_gaits
-from gait_policy_node.rollout import ClosedLoop, ramp_profile
+from gait_policy_node.rollout import ClosedLoop
+
+from gait_policy_node import speed_profiles
 
 REFERENCE = Path(__file__).with_name("data") / "closed_loop_reference.npz"
 CASES = {"slow_trot": 1.0, "fly_trot": 2.5}  # gait -> ramp target [m/s] at 1 m/s^2
@@ -28,7 +30,7 @@ FIELDS = ("position", "velocity", "kp", "kd", "torque")
 def record(gait: str, target: float) -> np.ndarray:
     """(STEPS, 1 + 5 x 12): the mode and every field of each joint command the controller sent."""
     loop = ClosedLoop(load_hand_tuned_gaits()[gait])
-    profile = ramp_profile(target)
+    profile = speed_profiles.ramp(target)
     rows = []
     try:
         for _ in range(STEPS):

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 from a1_common.config import ConfigError
-from a1_common.kinematics import leg_jacobians
+from a1_common.kinematics import leg_kinematics
 from a1_common.robot import a1
 from state_estimator_node.estimator import (
     EstimatorConfig,
@@ -27,7 +27,7 @@ def joint_velocity_for(base_velocity: np.ndarray, q: np.ndarray = Q_NOMINAL) -> 
     Solves (J + [r e_z]x M) dq = -v per leg (level base, no rotation), where M maps the leg's joint
     rates to the foot's angular velocity: the rolling-sphere foot model the estimator uses.
     """
-    jac = leg_jacobians(ROBOT, q)
+    jac = leg_kinematics(ROBOT, q)[1]
     r_up = np.array([0.0, 0.0, ROBOT.foot_radius])
     skew = np.array([[0, -r_up[2], r_up[1]], [r_up[2], 0, -r_up[0]], [-r_up[1], r_up[0], 0]])
     dq = np.zeros(12)

@@ -236,10 +236,11 @@ def test_controller_killed_damps_within_50_ms_then_recovers(graph):
 def test_bringup_script_leaves_no_process_after_sigterm(rclpy_context, tmp_path, record):
     """The default form (control_chain and gait_policy), and ``--form separate`` (a process a node)
     with --record, which adds the bag recorder, whose bag SIGTERM closes: metadata.yaml, and the
-    graph's topics read back with the library."""
+    graph's topics read back with the library; that one in a namespace, the recorder's node too."""
     env = {**os.environ}
     bag = tmp_path / "bag"
-    extra = ["--form", "separate", "--record", str(bag)] if record else []
+    ns = "/a1_3" if record else ""
+    extra = ["--form", "separate", "--record", str(bag), "--namespace", ns] if record else []
     proc = subprocess.Popen(["bash", str(ROOT / "scripts" / "bringup.sh"), "--clock", "lockstep", *extra], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     pids = []
@@ -252,16 +253,16 @@ def test_bringup_script_leaves_no_process_after_sigterm(rclpy_context, tmp_path,
     assert len(pids) == nodes, f"bring-up did not start {nodes} nodes: {pids}"
     listener = Node("bringup_listener", context=rclpy_context)
     seen = []
-    listener.create_subscription(JointState, "/joint_states", seen.append, CONTROL_QOS)
+    listener.create_subscription(JointState, f"{ns}/joint_states", seen.append, CONTROL_QOS)
     written: dict[str, str] = {}  # the recorder's /diagnostics: messages written per topic
-    listener.create_subscription(DiagnosticArray, "/diagnostics", lambda m: written.update(
+    listener.create_subscription(DiagnosticArray, f"{ns}/diagnostics", lambda m: written.update(
         {kv.key: kv.value for st in m.status if st.name == "bag_recorder" for kv in st.values}), 10)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(listener)
     try:
         assert spin_until(executor, lambda: len(seen) > 10, 60.0), "graph never published"
         if record:
-            assert spin_until(executor, lambda: int(written.get("/joint_states", 0)) > 10, 60.0), written
+            assert spin_until(executor, lambda: int(written.get(f"{ns}/joint_states", 0)) > 10, 60.0), written
         os.kill(proc.pid, signal.SIGTERM)
         proc.wait(timeout=30)
     finally:
@@ -274,5 +275,5 @@ def test_bringup_script_leaves_no_process_after_sigterm(rclpy_context, tmp_path,
             os.killpg(pid, 0)  # the node's whole process group is gone
     if record:
         assert (bag / "metadata.yaml").is_file()
-        stamps = [t for topic, _, t, _ in read_bag(bag) if topic == "/joint_states"]
+        stamps = [t for topic, _, t, _ in read_bag(bag) if topic == f"{ns}/joint_states"]
         assert len(stamps) > 10 and stamps == sorted(stamps)

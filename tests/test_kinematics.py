@@ -6,7 +6,7 @@ import numpy as np
 import pybullet
 import pybullet_data
 import pytest
-from a1_common.kinematics import foot_positions, inverse_kinematics, leg_jacobians
+from a1_common.kinematics import foot_positions, inverse_kinematics, leg_kinematics
 from a1_common.robot import a1
 from pybullet_utils import bullet_client
 
@@ -59,7 +59,7 @@ def test_forward_kinematics_and_jacobian_match_pybullet(bullet_a1):
     for q in random_poses(50):
         ref_pos, ref_jac = bullet_feet_and_jacobians(bullet_a1, q)
         np.testing.assert_allclose(foot_positions(robot, q), ref_pos, atol=2e-4)
-        np.testing.assert_allclose(leg_jacobians(robot, q), ref_jac, atol=2e-4)
+        np.testing.assert_allclose(leg_kinematics(robot, q)[1], ref_jac, atol=2e-4)
 
 
 def test_nominal_stance_feet():
@@ -73,7 +73,7 @@ def test_jacobian_matches_finite_differences():
     robot = a1()
     q = random_poses(1, seed=4)[0]
     eps = 1e-6
-    jac = leg_jacobians(robot, q)
+    jac = leg_kinematics(robot, q)[1]
     for j in range(12):
         dq = np.zeros(12)
         dq[j] = eps

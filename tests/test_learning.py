@@ -17,7 +17,7 @@ from gait_policy_node.gait_analysis import classify_gait, transition_speeds
 from gait_policy_node.learned_policy import NetworkPolicy, decode_action, load_policy, save_policy
 from gait_policy_node.policy import make_policy
 from gait_policy_node.rollout_workers import run_episode
-from gait_policy_node.sweep_gaits import compare_with_hand_tuned, sweep
+from gait_policy_node.sweep_gaits import compare_with_hand_tuned, lag_family_offsets, sweep
 from gait_policy_node.train_config import (
     ActionConfig,
     EnvConfig,
@@ -28,6 +28,8 @@ from gait_policy_node.train_config import (
     load_train_config,
     train_config_from_mapping,
 )
+
+from gait_policy_node import speed_profiles
 
 
 # --- reward ---------------------------------------------------------------------------------
@@ -224,6 +226,15 @@ def test_speed_profiles():
     assert speeds.max() <= 2.0
 
 
+def test_speed_profiles_beyond_what_episodes_use_as_the_velocity_command_node_asks():
+    backwards = speed_profiles.ramp(-1.0, acceleration=0.5)
+    assert [backwards(t).vx for t in (0.0, 1.0, 4.0)] == [0.0, -0.5, -1.0]
+    late = speed_profiles.steps([(1.0, 0.5), (2.0, -0.3)])
+    assert [late(t).vx for t in (0.0, 0.99, 1.0, 5.0)] == [0.0, 0.0, 0.5, -0.3]  # nothing before the first step
+    turning = speed_profiles.constant(0.5, 0.1, -0.4)(3.0)
+    assert (turning.vx, turning.vy, turning.yaw_rate) == (0.5, 0.1, -0.4)
+
+
 # --- gait classes ---------------------------------------------------------------------------
 def test_gait_classes_of_the_hand_tuned_and_textbook_gaits():
     gaits = load_hand_tuned_gaits()
@@ -320,3 +331,19 @@ def test_sweep_runs_each_gait_at_each_swing_ratio_of_the_grid_and_refuses_one_ou
     assert rows[0]["power"] != rows[1]["power"]  # the swing ratio reached the controller
     with pytest.raises(ConfigError, match=r"--swing-ratios: .*swing_ratio"):
         sweep(config, ["walk"], [0.5], [2.0], [], hold=3.0, workers=1, swing_ratios=[1.5])
+
+
+def test_lag_family_runs_from_the_trot_to_both_walks_and_refuses_what_it_cannot_run():
+    deg = np.degrees
+    assert np.allclose(deg(lag_family_offsets(0)), (0, 180, 180, 0))  # trot
+    assert np.allclose(deg(lag_family_offsets(90)), deg(load_hand_tuned_gaits()["walk"].phase_offsets))
+    assert np.allclose(deg(lag_family_offsets(-90)), (0, 180, 90, 270))
+    assert classify_gait(0.3, lag_family_offsets(30)) == "walk" and classify_gait(0.3, lag_family_offsets(10)) == "trot"
+    config = load_train_config()
+    rows = sweep(config, [], [0.5], [1.5], [], hold=3.0, workers=1, swing_ratios=[0.3], lags=[-45, 45])
+    assert sorted(r["name"] for r in rows) == ["lag+45", "lag-45"] and not any(r["fell"] for r in rows)
+    assert rows[0]["power"] != rows[1]["power"]  # the offsets reached the controller
+    with pytest.raises(ConfigError, match="--lags needs --swing-ratios"):
+        sweep(config, [], [0.5], [1.5], [], hold=3.0, workers=1, lags=[30])
+    with pytest.raises(ConfigError, match=r"--lags must be in \[-180, 180\]"):
+        lag_family_offsets(200)

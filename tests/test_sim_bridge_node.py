@@ -61,7 +61,7 @@ def test_lockstep_one_sensor_set_per_command(bridge_graph):
     assert bridge.sim.steps >= 399
     assert bridge.watchdog.accepted >= 300 and bridge.watchdog.rejected == 0
     assert not bridge.watchdog.in_fallback
-    assert bridge._uncommanded_steps <= bridge._lockstep_timeouts  # in lockstep only a timed-out step misses
+    assert bridge.deadlines.uncommanded <= bridge._lockstep_timeouts  # in lockstep only a timed-out step misses
     # The other sensor topics carry the same stamps, and the clock follows sim time. (Keep-last-1
     # queues may drop a message the listener was too slow to take, so compare sets, not lists.)
     joint_stamps = set(stamps)
@@ -104,7 +104,7 @@ def test_bad_command_rejected_then_damping_after_timeout(bridge_graph):
     # after command_timeout = 50 ms of sim time, i.e. 25 steps.
     assert spin_until(executor, lambda: bridge.sim.steps >= steps_before + 30, timeout_s=30.0)
     assert bridge.watchdog.in_fallback and bridge.watchdog.timeouts == 1
-    assert bridge._uncommanded_steps >= 30  # each of those steps counts as a missed deadline
+    assert bridge.deadlines.uncommanded >= 30  # each of those steps counts as a missed deadline
 
 
 @pytest.mark.ros
@@ -312,7 +312,7 @@ def test_stepped_by_the_executor_thread_one_sensor_set_per_step(rclpy_context, c
     if clock_mode == "lockstep":
         tail = np.diff(stamps[-200:])  # (a keep-last-1 listener may miss one: no repeats, in order)
         assert np.all(tail > 0) and np.all(tail % STEP_NS == 0), f"repeats in lockstep stamps: {set(tail.tolist())}"
-        assert bridge._uncommanded_steps <= bridge._lockstep_timeouts  # a step waits for its command
+        assert bridge.deadlines.uncommanded <= bridge._lockstep_timeouts  # a step waits for its command
         assert max(waits) <= 0.2 + 1e-9  # never past lockstep_timeout
     else:
         assert max(waits) <= 0.004 + 1e-9 and bridge.sim.steps >= 250

@@ -6,8 +6,9 @@ import dataclasses
 
 import numpy as np
 import pytest
-from a1_common.command import CommandError, CommandWatchdog, JointCommand, MotorMode
+from a1_common.command import CommandError, CommandWatchdog, DeadlineMonitor, JointCommand, MotorMode
 from a1_common.config import ConfigError
+from a1_common.robot import a1
 from a1_sim_bridge.sim import A1Sim, SensorNoise, SimConfig
 from a1_sim_bridge.worlds import WORLD_NAMES
 
@@ -114,6 +115,35 @@ def test_watchdog_timeout_is_the_same_number_of_steps_at_any_time():
         wd.offer(JointCommand(), now=t0)
         assert wd.active((start_step + 24) * 0.002).mode == MotorMode.HYBRID
         assert wd.active((start_step + 25) * 0.002).mode == MotorMode.DAMPING
+
+
+def test_stand_up_moves_linearly_from_the_measured_pose_to_the_nominal_one():
+    robot = a1()
+    start = np.zeros(12)
+    nominal = robot.nominal_joint_angles
+    for elapsed, share in ((-1.0, 0.0), (0.0, 0.0), (0.5, 0.5), (1.0, 1.0), (7.0, 1.0)):
+        command = JointCommand.stand_up(robot, start, elapsed, duration=1.0)
+        np.testing.assert_allclose(command.position, share * nominal)
+        np.testing.assert_array_equal(command.kp, robot.joint_kp)
+    np.testing.assert_array_equal(JointCommand.stand_up(robot, start, 0.0, duration=0.0).position, nominal)
+
+
+def test_deadline_monitor_counts_missed_periods_and_the_longest_gap_per_window():
+    monitor = DeadlineMonitor(period=0.002)
+    for accepted in (1, 2, 2, 2, 3, 4, 4):  # the watchdog's count at each period: 3 periods brought nothing
+        monitor.count(accepted)
+    for seconds in (0.001, 0.002, 0.003):
+        monitor.latency(seconds)
+    assert (monitor.periods, monitor.uncommanded) == (7, 3)
+    window = monitor.window()
+    assert window["longest_command_gap_ms"] == "6"  # two periods in a row without a new command
+    assert window["commanded_steps_window"] == 3 and window["latency_median_ms"] == "2.000"
+    monitor.count(5)
+    assert monitor.window() == {"commanded_steps_window": 0, "latency_median_ms": "n/a",
+                                "latency_p99_ms": "n/a", "longest_command_gap_ms": "2"}  # a new window
+    assert monitor.uncommanded == 3  # totals are kept across windows
+    with pytest.raises(ConfigError, match="period"):
+        DeadlineMonitor(period=0.0)
 
 
 def test_damping_lowers_the_robot_slowly(sim):

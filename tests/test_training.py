@@ -208,6 +208,43 @@ def test_log_records_the_workers_and_resumes_a_run_logged_without_them(tmp_path)
         assert [row["workers"] for row in csv.DictReader(fh)] == ["", "1"]  # unknown, then this session's
 
 
+def test_init_from_starts_the_search_at_that_policy_and_resumes_from_it(tmp_path):
+    first = tmp_path / "first"
+    assert train_es(*tiny_args(first, "--iterations", "1", "--backend", "serial")).wait(timeout=300) == 0
+    start = load_policy(first / "policy.npz")[0].params
+    assert np.any(start != 0)
+    straight, resumed = tmp_path / "straight", tmp_path / "resumed"
+    for run, iterations in ((straight, "2"), (resumed, "1")):
+        proc = train_es(*tiny_args(run, "--iterations", iterations, "--backend", "serial",
+                                   "--init-from", str(first / "policy.npz")))
+        out, _ = proc.communicate(timeout=300)
+        assert proc.returncode == 0, out
+        assert (run / "initial_policy.npz").read_bytes() == (first / "policy.npz").read_bytes()
+    config = load_train_config(resumed / "config.yaml")
+    assert np.array_equal(Trainer(config, tmp_path / "no_initial_policy").optimizer.mean, np.zeros(start.size))
+    (tmp_path / "warm").mkdir()
+    (tmp_path / "warm" / "initial_policy.npz").write_bytes((first / "policy.npz").read_bytes())
+    assert np.array_equal(Trainer(config, tmp_path / "warm").optimizer.mean, start)  # the search starts there
+    assert train_es("--resume", str(resumed), "--iterations", "2").wait(timeout=300) == 0
+    assert log_rows(resumed) == log_rows(straight)  # resume replays from the same start
+
+
+def test_init_from_refuses_another_network_before_making_the_run_folder(tmp_path):
+    first = tmp_path / "first"
+    assert train_es(*tiny_args(first, "--iterations", "1", "--backend", "serial")).wait(timeout=300) == 0
+    run = tmp_path / "wider"
+    proc = train_es(*tiny_args(run, "--iterations", "1", "--set", "policy.hidden_units=16",
+                               "--init-from", str(first / "policy.npz")))
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 2 and "network, observation or action decoding differs" in out and not run.exists()
+    proc = train_es(*tiny_args(run, "--iterations", "1", "--init-from", str(tmp_path / "none.npz")))
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 2 and "--init-from" in out and "no such file" in out and not run.exists()
+    proc = train_es("--resume", str(first), "--init-from", str(first / "policy.npz"))
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 2 and "drop --config, --run-dir and --init-from" in out
+
+
 @pytest.mark.slow
 def test_backends_agree_for_the_same_seed():
     pytest.importorskip("ray")

@@ -37,13 +37,24 @@ _node_command() {  # <pkg> <exe>: set the array _GS_CMD to the command that runs
 
 GS_NAMESPACE=${GS_NAMESPACE:-}  # non-empty (/a1_1): every node started here runs in that namespace
 
+_GS_REMAPS=""  # GS_NAMESPACE's ROS arguments, shell-quoted, once _namespace_remaps has run
+
+_namespace_remaps() {  # set _GS_REMAPS from the graph description's rule (a1_bringup.graph), once
+  [ -n "$_GS_REMAPS" ] || _GS_REMAPS=$(python -m a1_bringup.graph --remaps-only --namespace "$GS_NAMESPACE")
+}
+
+check_namespace() {  # exit 2 with a1_bringup.graph's reason unless GS_NAMESPACE is empty or valid
+  [ -z "$GS_NAMESPACE" ] || _namespace_remaps || exit 2
+}
+
 start_node() {  # <pkg> <exe> <logdir> [args...]: start in the background, log to <logdir>/<exe>.log
   local pkg=$1 exe=$2 logdir=$3; shift 3
   _node_command "$pkg" "$exe" || return 1
-  if [ -n "$GS_NAMESPACE" ]; then  # topics are relative; sim time from this graph's own <ns>/clock
+  if [ -n "$GS_NAMESPACE" ]; then
+    _namespace_remaps || return 1
     local ros=()
     [[ " $* " == *" --ros-args "* ]] || ros=(--ros-args)
-    set -- "$@" "${ros[@]}" -r "__ns:=$GS_NAMESPACE" -r /clock:=clock
+    eval "set -- \"\$@\" \"\${ros[@]}\" $_GS_REMAPS"  # shell-quoted by the describer (shlex.join)
   fi
   # setsid: the node leads its own process group, so stop_nodes reaches its children too.
   setsid "${_GS_CMD[@]}" "$@" >"$logdir/$exe.log" 2>&1 &

@@ -23,6 +23,7 @@ setup(
             "train_es = gait_policy_node.train_es:main",
             "eval_policy = gait_policy_node.eval_policy:main",
             "sweep_gaits = gait_policy_node.sweep_gaits:main",
+            "compare_policies = gait_policy_node.compare_policies:main",
         ]
     },
 )

@@ -14,14 +14,17 @@ end-to-end tests and benchmarks) starts the same NodeSpecs. The rules:
 - composed: the 500 Hz chain (sim_bridge or hw_bridge, state_estimator, convex_mpc) as one
   process, a1_bringup's control_chain; virtual_a1 (it plays the robot) and gait_policy stay apart.
 
-    python -m a1_bringup.graph --clock lockstep --config config --set gait_policy.policy=learned [--composed]
+    python -m a1_bringup.graph --clock lockstep --config config --set gait_policy.policy=learned \
+        [--composed] [--namespace /a1_2]
 
-prints one shell-quoted line per process: package, executable, arguments.
+prints one shell-quoted line per process: package, executable, arguments. With ``--remaps-only
+--namespace /a1_2`` it prints just the arguments that put any node (a tool's) in that namespace.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import shlex
 import sys
 from collections.abc import Collection
@@ -30,6 +33,7 @@ from pathlib import Path
 
 CLOCKS = ("lockstep", "realtime")
 BRIDGES = ("sim", "virtual", "hardware")
+NAMESPACE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
 
 
 @dataclass
@@ -47,14 +51,14 @@ class NodeSpec:
         """The names of the rclpy nodes this process runs."""
         return self.members or (self.name,)
 
-    def arguments(self, config_dir: Path) -> list[str]:
-        """The node's command-line arguments (after the executable)."""
+    def arguments(self, config_dir: Path, namespace: str = "") -> list[str]:
+        """The node's command-line arguments (after the executable), in ``namespace`` if not ""."""
         args = [*self.options, "--ros-args"]
         for name in self.param_files:
             args += ["--params-file", str(config_dir / name)]
         for key, value in self.params.items():
             args += ["-p", f"{key}:={value}"]
-        return args
+        return args + namespace_remaps(namespace)
 
 
 def describe(clock: str, bridge: str = "sim", *, embedded_estimator: bool | None = None) -> list[NodeSpec]:
@@ -84,6 +88,16 @@ def describe(clock: str, bridge: str = "sim", *, embedded_estimator: bool | None
     nodes.append(NodeSpec("convex_mpc", "convex_mpc_node", "convex_mpc", controller_files, controller))
     nodes.append(NodeSpec("gait_policy", "gait_policy_node", "gait_policy", ["gait_policy.yaml"], dict(sim_time)))
     return nodes
+
+
+def namespace_remaps(namespace: str) -> list[str]:
+    """The ROS arguments that run a node in ``namespace`` ("": none): the stack's topics are relative,
+    so ``__ns`` moves them all; sim time comes from the graph's own ``<namespace>/clock``."""
+    if not namespace:
+        return []
+    if not NAMESPACE.fullmatch(namespace):
+        raise ValueError(f"namespace must look like /a1_2 (letters, digits, _), got {namespace!r}")
+    return ["-r", f"__ns:={namespace}", "-r", "/clock:=clock"]
 
 
 CHAIN = ("sim_bridge", "hw_bridge", "state_estimator", "convex_mpc")  # what control_chain composes
@@ -128,21 +142,29 @@ def with_settings(nodes: list[NodeSpec], settings: list[str]) -> list[NodeSpec]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m a1_bringup.graph", description=__doc__.split("\n")[0])
-    parser.add_argument("--clock", required=True, choices=CLOCKS)
+    parser.add_argument("--clock", choices=CLOCKS, help="required unless --remaps-only")
     parser.add_argument("--bridge", default="sim", choices=BRIDGES)
-    parser.add_argument("--config", type=Path, required=True, help="the config/ folder")
+    parser.add_argument("--config", type=Path, help="the config/ folder (required unless --remaps-only)")
     parser.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE")
     parser.add_argument("--composed", action="store_true",
                         help="the 500 Hz chain (bridge, estimator, controller) as one control_chain process")
+    parser.add_argument("--namespace", default="", help="run every node in this namespace, e.g. /a1_2")
+    parser.add_argument("--remaps-only", action="store_true",
+                        help="print only the ROS arguments that put a node in --namespace (for a tool's node)")
     args = parser.parse_args(argv)
+    if not args.remaps_only and (args.clock is None or args.config is None):
+        parser.error("--clock and --config are required (unless --remaps-only)")
     try:
+        if args.remaps_only:
+            print(shlex.join(namespace_remaps(args.namespace)))
+            return 0
         nodes = with_settings(describe(args.clock, args.bridge), args.set)
         nodes = composed(nodes) if args.composed else nodes
+        lines = [shlex.join([n.package, n.executable, *n.arguments(args.config, args.namespace)]) for n in nodes]
     except ValueError as exc:
         print(f"a1_bringup.graph: {exc}", file=sys.stderr)
         return 2
-    for node in nodes:
-        print(shlex.join([node.package, node.executable, *node.arguments(args.config)]))
+    print("\n".join(lines))
     return 0
 
 

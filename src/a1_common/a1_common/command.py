@@ -1,6 +1,7 @@
-"""The low-level joint command: the A1's hardware contract, free of ROS.
+"""The commands passed down the stack, free of ROS: the body velocity command (what /cmd_vel
+carries to the controller) and the low-level joint command (the A1's hardware contract).
 
-Mirrors ``gait_msgs/MotorCommand`` and what the A1's low-level interface accepts per motor:
+The joint command mirrors ``gait_msgs/MotorCommand`` and what the A1's low-level interface accepts per motor:
 in HYBRID mode each joint applies ``tau = kp (q* - q) + kd (dq* - dq) + tau_ff`` [N m], clipped to
 the motor limit; in DAMPING mode every joint applies ``tau = -kd_damping * dq``, the robot's safe
 state. Joint order: FR, FL, RR, RL x (hip, thigh, calf).
@@ -22,6 +23,15 @@ MAX_KP = 1000.0  # [N m / rad]
 MAX_KD = 100.0  # [N m s / rad]
 # Feed-forward torques beyond this are certainly a bug upstream, not a clip candidate.
 MAX_FEEDFORWARD_TORQUE = 100.0  # [N m]
+
+
+@dataclass
+class VelocityCommand:
+    """Desired base velocity in the yaw-aligned frame (forward, left) [m/s] and yaw rate [rad/s]."""
+
+    vx: float = 0.0
+    vy: float = 0.0
+    yaw_rate: float = 0.0
 
 
 class CommandError(ValueError):
@@ -67,6 +77,14 @@ class JointCommand:
         """Joint PD hold of ``position`` (default: the nominal standing pose)."""
         q = robot.nominal_joint_angles if position is None else position
         return cls(position=np.array(q, dtype=float), kp=robot.joint_kp.copy(), kd=robot.joint_kd.copy())
+
+    @classmethod
+    def stand_up(cls, robot: A1Constants, start: np.ndarray, elapsed: float, duration: float) -> JointCommand:
+        """The safe stand-up every standing node does (as the A1's own): joint PD hold of a target
+        moving linearly from the measured ``start`` pose [rad] to the nominal one over ``duration``
+        [s] (0: at once), ``elapsed`` [s] after it began."""
+        beta = 1.0 if duration <= 0 else min(max(elapsed / duration, 0.0), 1.0)
+        return cls.hold(robot, beta * robot.nominal_joint_angles + (1.0 - beta) * np.asarray(start, dtype=float))
 
     def validated(self) -> JointCommand:
         """Return a float64 copy, or raise CommandError naming the first bad field."""
@@ -180,3 +198,42 @@ class CommandWatchdog:
     @property
     def in_fallback(self) -> bool:
         return self._in_fallback
+
+
+class DeadlineMonitor:
+    """What the robot sees of its controller, counted by a bridge once per control period (the sim
+    bridge's steps, the hardware bridge's sends): periods with no new command since the one before
+    (a missed deadline), the longest run of them, and the sensor-to-command latency. One class, so
+    that both bridges count alike and report the same figures."""
+
+    def __init__(self, period: float) -> None:
+        self.period = require_range("period", period, 0.0, 1.0, low_open=True)  # [s]
+        self.periods = 0
+        self.uncommanded = 0  # periods with nothing new to apply: missed deadlines
+        self._accepted_before = 0
+        self._run = 0  # uncommanded periods in a row, now
+        self._longest_run = 0  # ... the longest in this window
+        self._latencies: list[float] = []  # [s] in this window
+
+    def count(self, accepted: int) -> None:
+        """One period, with ``accepted`` the watchdog's count of commands accepted so far."""
+        fresh = accepted != self._accepted_before
+        self._accepted_before = accepted
+        self.periods += 1
+        self.uncommanded += not fresh
+        self._run = 0 if fresh else self._run + 1
+        self._longest_run = max(self._longest_run, self._run)
+
+    def latency(self, seconds: float) -> None:
+        """Wall time from publishing a period's sensors to receiving the command that answers them."""
+        self._latencies.append(seconds)
+
+    def window(self) -> dict[str, str | int]:
+        """The window's figures for /diagnostics, and a new window: commands answered, latency median
+        and p99 [ms], longest time between two periods with a new command (one period: none missed) [ms]."""
+        latencies, self._latencies = self._latencies, []
+        longest, self._longest_run = self._longest_run, 0
+        return {"commanded_steps_window": len(latencies),
+                "latency_median_ms": f"{np.median(latencies) * 1e3:.3f}" if latencies else "n/a",
+                "latency_p99_ms": f"{np.percentile(latencies, 99) * 1e3:.3f}" if latencies else "n/a",
+                "longest_command_gap_ms": f"{(longest + 1) * self.period * 1e3:.0f}"}

@@ -30,11 +30,6 @@ def foot_positions(robot: A1Constants, q: np.ndarray) -> np.ndarray:
     return leg_kinematics(robot, q)[0]
 
 
-def leg_jacobians(robot: A1Constants, q: np.ndarray) -> np.ndarray:
-    """d(foot position)/d(leg joint angles) in the base frame, shape (4, 3, 3) [m/rad]."""
-    return leg_kinematics(robot, q)[1]
-
-
 def leg_kinematics(robot: A1Constants, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Foot positions (4, 3) [m] and leg Jacobians (4, 3, 3) [m/rad] in the base frame together:
     the controller and the estimator need both every 2 ms, and they share the trigonometry."""

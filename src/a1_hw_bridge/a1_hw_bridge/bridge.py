@@ -40,7 +40,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from a1_common.command import CommandWatchdog, JointCommand
+from a1_common.command import CommandWatchdog, DeadlineMonitor, JointCommand
 from a1_common.config import ConfigError, require_choice, require_integer, require_range, setting
 from a1_common.robot import A1Constants, a1
 from a1_interface.sensors import SensorReadings
@@ -170,15 +170,10 @@ class BridgeLogic:
         self.phase = phase
         self._phase_start = now
 
-    def stand_target(self, now: float) -> np.ndarray:
-        """Stand-up PD target [rad]: measured start pose -> nominal pose, linear in time."""
-        beta = min(max((now - self._phase_start) / self.config.stand_up_time, 0.0), 1.0)
-        return beta * self.robot.nominal_joint_angles + (1.0 - beta) * self._start_q
-
     def joint_command(self, now: float) -> JointCommand:
         """The command in force at ``now`` for the current phase."""
         if self.phase == Phase.STANDING_UP:
-            return JointCommand.hold(self.robot, self.stand_target(now))
+            return JointCommand.stand_up(self.robot, self._start_q, now - self._phase_start, self.config.stand_up_time)
         if self.phase == Phase.RUNNING:
             if self.watchdog.accepted == 0:  # the controller has not taken over yet: keep standing
                 return JointCommand.hold(self.robot)
@@ -208,8 +203,6 @@ class BridgeCounters:
     lockstep_timeouts: int = 0  # lockstep: no controller command within lockstep_timeout
     late_commands: int = 0  # commands answering another step (lockstep) or no recent state (realtime)
     published: int = 0
-    sends: int = 0  # realtime: command datagrams sent on the control period, since the first command
-    uncommanded_sends: int = 0  # ... of them with no new command since the send before: a missed deadline
 
 
 class HardwareBridge:
@@ -238,11 +231,9 @@ class HardwareBridge:
         self._last_state_wall = float("-inf")
         self._prev_stamp_ns = -1  # stamp of the state handled before the latest one
         self._published_at: dict[int, float] = {}  # realtime: stamp -> monotonic time it was published
-        # Realtime deadline figures since the last diagnostics() (as the sim bridge reports them):
-        self._latencies: list[float] = []  # [s] state published -> its command accepted
-        self._accepted_at_last_send = 0
-        self._uncommanded_run = 0  # sends in a row with nothing new
-        self._longest_uncommanded_run = 0
+        # Realtime: the sends on the control period from the first command on, those with no new
+        # command since the send before (missed deadlines), and state-to-command latency.
+        self.deadlines = DeadlineMonitor(self.config.control_period)
         self._raw_forces: deque[tuple[int, np.ndarray]] = deque(maxlen=100)
         self._schedules: list[tuple[int, np.ndarray]] = []
         self._tick_wraps = 0
@@ -299,7 +290,7 @@ class HardwareBridge:
                 if issued is not None and time.monotonic() - issued >= self.config.command_timeout:
                     issued = None
                 if issued is not None and stamp_ns != self._commanded_stamp_ns:  # the first answer counts
-                    self._latencies.append(time.monotonic() - issued)
+                    self.deadlines.latency(time.monotonic() - issued)
             if issued is None:  # not an answer to a recent state of this bridge
                 self.counters.late_commands += 1
                 return "late"
@@ -319,15 +310,9 @@ class HardwareBridge:
         """Counts since the start; the latency and gap figures over the window since the last call."""
         with self._lock:
             logic, wd, link = self.logic, self.logic.watchdog, self.link.stats
-            latencies, self._latencies = self._latencies, []
-            longest_gap, self._longest_uncommanded_run = self._longest_uncommanded_run, 0
-            period_ms = self.config.control_period * 1e3
             return {
-                "sends": self.counters.sends, "uncommanded_sends": self.counters.uncommanded_sends,
-                "commanded_steps_window": len(latencies),
-                "latency_median_ms": f"{np.median(latencies) * 1e3:.3f}" if latencies else "n/a",
-                "latency_p99_ms": f"{np.percentile(latencies, 99) * 1e3:.3f}" if latencies else "n/a",
-                "longest_command_gap_ms": f"{(longest_gap + 1) * period_ms:.0f}",
+                "sends": self.deadlines.periods, "uncommanded_sends": self.deadlines.uncommanded,
+                **self.deadlines.window(),
                 "phase": logic.phase.value, "fault": logic.fault, "clock_mode": self.config.clock_mode,
                 "scheduling": self.scheduling,
                 "robot": f"{self.config.robot_ip}:{self.config.robot_port}",
@@ -376,14 +361,8 @@ class HardwareBridge:
     def _count_send(self) -> None:
         """Realtime: one period's send, and whether a new command came since the last (lock held)."""
         accepted = self.logic.watchdog.accepted
-        if accepted == 0:  # nobody has commanded yet: no deadline to miss
-            return
-        fresh = accepted != self._accepted_at_last_send
-        self._accepted_at_last_send = accepted
-        self.counters.sends += 1
-        self.counters.uncommanded_sends += not fresh
-        self._uncommanded_run = 0 if fresh else self._uncommanded_run + 1
-        self._longest_uncommanded_run = max(self._longest_uncommanded_run, self._uncommanded_run)
+        if accepted:  # before the first command there is no deadline to miss
+            self.deadlines.count(accepted)
 
     def _run_lockstep(self) -> None:
         with self._lock:

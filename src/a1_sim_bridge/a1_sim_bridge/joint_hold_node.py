@@ -56,9 +56,8 @@ class JointHoldNode(Node):
             self._start = (now_ns, q)
         self._last_ns = now_ns
         t0, q0 = self._start
-        beta = 1.0 if self.ramp_time == 0 else min((now_ns - t0) * 1e-9 / self.ramp_time, 1.0)
-        target = beta * self.robot.nominal_joint_angles + (1.0 - beta) * q0
-        self.pub.publish(motor_command_msg(JointCommand.hold(self.robot, target), msg.header.stamp))
+        command = JointCommand.stand_up(self.robot, q0, (now_ns - t0) * 1e-9, self.ramp_time)
+        self.pub.publish(motor_command_msg(command, msg.header.stamp))
 
 
 def main(args: list[str] | None = None) -> None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import math
 import threading
 import time
@@ -27,9 +28,8 @@ import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import rclpy
-from a1_common.command import CommandWatchdog, MotorMode
+from a1_common.command import CommandWatchdog, DeadlineMonitor, MotorMode
 from a1_common.config import (
     ConfigError,
     parameter_defaults,
@@ -149,15 +149,12 @@ class SimBridgeNode(Node):
         self._rate_window = (time.monotonic(), 0)
         self._achieved_rate = 0.0
         self._overruns = 0
-        self._uncommanded_steps = 0  # steps applied with no command accepted since the step before
-        self._accepted_at_last_step = 0
-        self._uncommanded_run = 0  # steps in a row with nothing new to apply, now
-        self._longest_uncommanded_run = 0  # ... the longest since the last /diagnostics
+        # Steps applied with no command accepted since the step before (missed deadlines), and the
+        # sensor-to-command latency as the robot sees it, over the last /diagnostics period.
+        self.deadlines = DeadlineMonitor(self.sim.config.time_step)
         self._lowest_base_height = float("inf")  # [m] since the last /diagnostics
-        # Sensor-to-command latency as the robot sees it: wall time from publishing step k's
-        # sensors to receiving the command stamped k [s], over the last /diagnostics period.
+        # Wall time each step's sensors went out, for the latency of the command stamped with it.
         self._published_at: collections.OrderedDict[int, float] = collections.OrderedDict()
-        self._latencies: list[float] = []
         self.failure: Exception | None = None
         self._thread = threading.Thread(target=self._loop, name="sim_loop", daemon=True) if own_thread else None
         self._period = self.sim.config.time_step / self.real_time_factor  # realtime pacing, wall seconds
@@ -183,7 +180,7 @@ class SimBridgeNode(Node):
                 return
             published = self._published_at.pop(stamp_ns, None)  # the first command for a step counts
             if published is not None:
-                self._latencies.append(time.monotonic() - published)
+                self.deadlines.latency(time.monotonic() - published)
             now_ns = self.sim.steps * self.dt_ns
             if self.clock_mode == "lockstep":
                 stale = stamp_ns != now_ns  # stamped for another step: not for this one
@@ -227,37 +224,19 @@ class SimBridgeNode(Node):
 
     # --- simulation loop (own thread) --------------------------------------------------------
     def _loop(self) -> None:
-        period = self._period
-        next_deadline = time.monotonic()
+        """``poll`` in a thread of its own, so that both forms step by the same rules: between calls
+        it waits on the lock (this step's command, a reset, a pause or unpause, or shutdown ends the
+        wait early) or, in realtime, sleeps to the next deadline."""
         try:
-            self._publish(self.sim.sensors())
             while self._running and rclpy.ok(context=self.context):
+                wait = self.poll()
+                if wait <= 0.0:
+                    continue
+                if self.clock_mode == "realtime" and not self._paused:
+                    time.sleep(wait)
+                    continue
                 with self._lock:
-                    if self._reset_requested:
-                        self._do_reset()
-                        next_deadline = time.monotonic()
-                        continue
-                    if self._paused:
-                        self._lock.wait(0.05)
-                        next_deadline = time.monotonic()
-                        continue
-                    if self.clock_mode == "lockstep":
-                        got = self._lock.wait_for(self._lockstep_ready, timeout=self.lockstep_timeout)
-                        if self._reset_requested or self._paused or not self._running:
-                            continue
-                        if not got:
-                            self._lockstep_timeouts += 1
-                    readings = self._advance()
-                self._publish(readings)
-                if self.clock_mode == "realtime":
-                    next_deadline += period
-                    delay = next_deadline - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
-                    else:
-                        self._overruns += 1
-                        if delay < -0.1:  # far behind (e.g. suspended): do not try to catch up
-                            next_deadline = time.monotonic()
+                    self._lock.wait_for(functools.partial(self._poll_due, self._paused), timeout=wait)
         except Exception as exc:  # a dead sim loop must be loud, never silent
             if not rclpy.ok(context=self.context):
                 return  # shutting down (Ctrl-C): publishers are gone, nothing is lost
@@ -265,6 +244,12 @@ class SimBridgeNode(Node):
                                     f"{traceback.format_exc()}")
             self.failure = exc
             self.context.try_shutdown()  # ends spin() in main(), which exits non-zero
+
+    def _poll_due(self, paused: bool) -> bool:
+        """Own thread's wake-up condition (lock held), ``paused`` as the wait began: poll has something
+        to do before the wait ends (a pause or unpause, a reset, shutdown, or this step's command)."""
+        return (self._paused != paused or self._reset_requested or not self._running
+                or (not self._paused and self._lockstep_ready()))
 
     def _advance(self):
         """One 2 ms step with the command in force (lock held); its sensor readings."""
@@ -277,18 +262,13 @@ class SimBridgeNode(Node):
         self._applied_damping = command.mode == MotorMode.DAMPING
         self._commanded_damping = self._applied_damping and not self.watchdog.in_fallback
         self._applied_stamp_ns = self._pending_stamp_ns
-        # A missed 2 ms deadline, as the robot sees it: nothing new to apply this step.
-        fresh = self.watchdog.accepted != self._accepted_at_last_step
-        self._uncommanded_steps += not fresh
-        self._uncommanded_run = 0 if fresh else self._uncommanded_run + 1
-        self._longest_uncommanded_run = max(self._longest_uncommanded_run, self._uncommanded_run)
-        self._accepted_at_last_step = self.watchdog.accepted
+        self.deadlines.count(self.watchdog.accepted)  # a missed 2 ms deadline: nothing new to apply
         return self.sim.step(command)
 
     def poll(self) -> float:
         """The simulation loop without its thread (``own_thread=False``), called by the executor's
-        thread between waits: does what is due now (a reset, a step) and returns how long the
-        executor may wait for messages before calling again [s]. Same rules as ``_loop``: lockstep
+        thread between waits (and by ``_loop`` in the node's own thread): does what is due now (a
+        reset, a step) and returns how long the caller may wait before calling again [s]. Lockstep
         steps once the step's command is in or ``lockstep_timeout`` passed; realtime on the wall
         clock's deadlines."""
         now = time.monotonic()
@@ -296,8 +276,8 @@ class SimBridgeNode(Node):
             if self._next_deadline is None:  # the first call: the start pose's sensors go out
                 readings = self.sim.sensors()
             elif self._reset_requested:
-                self._do_reset()  # publishes the new run's sensors
-                self._next_deadline = self._waiting_since = now
+                self._do_reset()  # publishes the new run's sensors; the new run's time starts after it
+                self._next_deadline = self._waiting_since = time.monotonic()
                 return 0.0
             elif self._paused:
                 self._next_deadline = self._waiting_since = now
@@ -414,9 +394,8 @@ class SimBridgeNode(Node):
 
     def _publish_diagnostics(self) -> None:
         with self._lock:
-            latencies, self._latencies = self._latencies, []
+            window = self.deadlines.window()
             lowest, self._lowest_base_height = self._lowest_base_height, float("inf")
-            longest_gap, self._longest_uncommanded_run = self._longest_uncommanded_run, 0
         now = time.monotonic()
         t0, n0 = self._rate_window
         self._achieved_rate = (self._published - n0) / max(now - t0, 1e-9)
@@ -442,12 +421,7 @@ class SimBridgeNode(Node):
             "last_rejection": wd.last_error, "damping_fallbacks": wd.timeouts,
             "late_commands": self._late_commands, "lockstep_timeouts": self._lockstep_timeouts,
             "realtime_overruns": self._overruns, "paused": self._paused,
-            "uncommanded_steps": self._uncommanded_steps,
-            # Longest time between two steps with a new command in this period (one step: none missed) [ms].
-            "longest_command_gap_ms": f"{(longest_gap + 1) * self.sim.config.time_step * 1e3:.0f}",
-            "commanded_steps_window": len(latencies),
-            "latency_median_ms": f"{np.median(latencies) * 1e3:.3f}" if latencies else "n/a",
-            "latency_p99_ms": f"{np.percentile(latencies, 99) * 1e3:.3f}" if latencies else "n/a",
+            "uncommanded_steps": self.deadlines.uncommanded, **window,
             "lowest_base_height_m": f"{lowest:.3f}" if self.publish_ground_truth else "n/a",
             "base_height_m": f"{base_z:.3f}",
         }

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import types
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,6 +28,10 @@ from pybullet_utils import bullet_client
 
 from a1_sim_bridge.worlds import WORLD_NAMES, build_world
 
+# The PyBullet calls of every step. BulletClient builds a fresh functools.partial on each attribute
+# access (about 15 a step); A1Sim binds these to its connection once.
+_STEP_CALLS = ("getJointStates", "setJointMotorControlArray", "stepSimulation", "getBaseVelocity",
+               "getBasePositionAndOrientation", "getMatrixFromQuaternion", "getContactPoints")
 FOOT_LINK_FRICTION = 1.0  # so that the ground's coefficient is the effective one
 START_CLEARANCE = 0.32  # base COM height at which the robot is dropped, above the ground [m]
 
@@ -115,6 +120,7 @@ class A1Sim:
         mode = pybullet.GUI if self.config.gui else pybullet.DIRECT
         self._p = bullet_client.BulletClient(connection_mode=mode)
         self._p.setAdditionalSearchPath(pybullet_data.getDataPath())
+        self._calls = types.SimpleNamespace(**{name: getattr(self._p, name) for name in _STEP_CALLS})
         self.steps = 0
         self.reset()
 
@@ -190,12 +196,12 @@ class A1Sim:
         return self.sensors()
 
     def _physics_step(self, command: JointCommand) -> np.ndarray:
-        p = self._p
+        p = self._calls
         states = p.getJointStates(self._body, self._joint_ids)
         q = np.array([s[0] for s in states])
         dq = np.array([s[1] for s in states])
         tau = command.motor_torques(q, dq, self.robot.motor_torque_limit, self.robot.damping_kd)
-        p.setJointMotorControlArray(self._body, self._joint_ids, p.TORQUE_CONTROL, forces=tau.tolist())
+        p.setJointMotorControlArray(self._body, self._joint_ids, pybullet.TORQUE_CONTROL, forces=tau.tolist())
         p.stepSimulation()
         self._applied_torque = tau
         velocity = np.array(p.getBaseVelocity(self._body)[0])
@@ -205,7 +211,7 @@ class A1Sim:
 
     # --- sensing --------------------------------------------------------------------------
     def _measure(self, accel_world: np.ndarray) -> SensorReadings:
-        p = self._p
+        p = self._calls
         noise = self.config.noise
         rng = self._noise_rng
         states = p.getJointStates(self._body, self._joint_ids)
@@ -257,7 +263,7 @@ class A1Sim:
             foot_contact=contacts.foot_contact, foot_force=contacts.foot_force)
 
     def ground_truth(self) -> GroundTruth:
-        p = self._p
+        p = self._calls
         position, orientation = p.getBasePositionAndOrientation(self._body)
         v_world, omega_world = p.getBaseVelocity(self._body)
         rot = np.array(p.getMatrixFromQuaternion(orientation)).reshape(3, 3)
@@ -271,6 +277,7 @@ class A1Sim:
         if self._p is not None:
             self._p.disconnect()
             self._p = None
+            self._calls = None  # bound to the closed connection's id, which PyBullet reuses
 
     def __enter__(self) -> A1Sim:
         return self

@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from a1_common.command import JointCommand
+from a1_common.command import JointCommand, VelocityCommand
 from a1_common.config import (
     ConfigError,
     config_dir,
@@ -160,15 +160,6 @@ class Observation:
     base_velocity: np.ndarray  # (3,) world frame [m/s], ground truth or estimate
 
 
-@dataclass
-class VelocityCommand:
-    """Desired base velocity in the yaw-aligned frame (forward, left) [m/s] and yaw rate [rad/s]."""
-
-    vx: float = 0.0
-    vy: float = 0.0
-    yaw_rate: float = 0.0
-
-
 class LocomotionController:
     """Turns a velocity command and the robot's state into joint commands, every 2 ms: the phase
     integrator (gait.py) says which legs stand and swing, StanceController (stance.py) gives the
@@ -187,6 +178,7 @@ class LocomotionController:
                                      com_offset_z=cfg.com_offset[2], swing_apex_height=cfg.swing_apex_height,
                                      raibert_feedback_gain=cfg.raibert_feedback_gain, raibert_clip=cfg.raibert_clip)
         self.drift = DriftCorrection(cfg.max_position_error, cfg.max_yaw_error)
+        self._com_offset = np.asarray(cfg.com_offset)  # once, not every 2 ms
         self.nan_commands = 0  # steps whose command had a NaN/inf: the joints were held instead
         self.reset()
 
@@ -237,7 +229,7 @@ class LocomotionController:
         rot = quat_to_matrix(np.asarray(obs.orientation, dtype=float))  # base -> world
         yaw, rot_yaw, rot_rp, roll, pitch = yaw_aligned_frame(rot)
         feet_base, jac = leg_kinematics(robot, q)
-        feet_yaw = (rot_rp @ (feet_base - np.asarray(cfg.com_offset)).T).T
+        feet_yaw = (rot_rp @ (feet_base - self._com_offset).T).T
         contact = np.asarray(obs.foot_contact, dtype=bool)
         states = self.gait.leg_states(contact)
         stance = states != LEG_SWING

@@ -35,6 +35,8 @@ from a1_common.robot import NUM_LEGS
 NX = 13  # state size (with the gravity entry)
 NU = 3 * NUM_LEGS  # forces of the four feet
 ROWS_PER_FOOT = 5
+# The bound OSQP's Python wrapper clips l and u to; ConvexMpc.solve applies it itself (see there).
+_OSQP_INFTY = osqp.constant("OSQP_INFTY")
 
 
 @dataclass(frozen=True)
@@ -133,8 +135,15 @@ _A_CONTINUOUS[11, 12] = -1.0  # v_z' = -g (state 12 holds g)
 
 def continuous_dynamics(config: MpcConfig, state: MpcState) -> tuple[np.ndarray, np.ndarray]:
     """A (13x13, constant) and B (13x12) of the centroidal model at ``state``."""
+    b = _input_matrix(np.diag(1.0 / np.asarray(config.inertia)), np.tile(np.eye(3) / config.mass, NUM_LEGS), state)
+    return _A_CONTINUOUS.copy(), b
+
+
+def _input_matrix(inertia_body_inv: np.ndarray, velocity_rows: np.ndarray, state: MpcState) -> np.ndarray:
+    """B of :func:`continuous_dynamics` from its state-independent parts, which ConvexMpc computes
+    once instead of every 2 ms: I_b^-1 (3x3 diagonal) and the rows of sum f_i / m (3x12)."""
     rot = rotation_rp(state.roll, state.pitch)
-    inertia_world_inv = rot @ np.diag(1.0 / np.asarray(config.inertia)) @ rot.T
+    inertia_world_inv = rot @ inertia_body_inv @ rot.T
     r = np.asarray(state.foot_positions, dtype=float)
     skews = np.zeros((NUM_LEGS, 3, 3))  # [r_i]x for all legs at once
     skews[:, 0, 1], skews[:, 0, 2] = -r[:, 2], r[:, 1]
@@ -142,8 +151,8 @@ def continuous_dynamics(config: MpcConfig, state: MpcState) -> tuple[np.ndarray,
     skews[:, 2, 0], skews[:, 2, 1] = -r[:, 1], r[:, 0]
     b = np.zeros((NX, NU))
     b[6:9] = np.einsum("ij,ljk->ilk", inertia_world_inv, skews).reshape(3, NU)
-    b[9:12] = np.tile(np.eye(3) / config.mass, NUM_LEGS)
-    return _A_CONTINUOUS.copy(), b
+    b[9:12] = velocity_rows
+    return b
 
 
 def discretize(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -197,6 +206,14 @@ class ConvexMpc:
         # Cost: sum_k |x_k - ref_k|_Q^2 + alpha |u_k|^2  ->  1/2 z' P z + q' z
         q_diag = np.append(np.asarray(cfg.state_weights, dtype=float), 0.0)
         self._q_diag = np.tile(q_diag, h)
+        # Constants of build(), computed once (the same operations, so the same values).
+        self._q_ref_gain = -2.0 * self._q_diag  # q = -2 Q x_ref
+        self._q_forces = np.zeros(h * NU)
+        self._inertia_body_inv = np.diag(1.0 / np.asarray(cfg.inertia))
+        self._velocity_rows = np.tile(np.eye(3) / cfg.mass, NUM_LEGS)
+        # Force-row bounds of a stance foot; a swing foot's are all 0 (f = 0).
+        self._stance_lower = np.array([0.0, 0.0, 0.0, 0.0, cfg.min_normal_force])
+        self._stance_upper = np.array([np.inf, np.inf, np.inf, np.inf, cfg.max_normal_force])
         p_diag = np.concatenate([2 * self._q_diag, np.full(h * NU, 2 * cfg.force_weight)])
         p_mat = sp.diags(p_diag, format="csc")
         # Structural sparsity of A_d (constant) and B_d (values change every step), found from a
@@ -252,7 +269,6 @@ class ConvexMpc:
                 self._a_values[position[i:i + len(f_r)]] = block[f_r, f_c]
                 i += len(f_r)
         self._b_positions = np.array(b_slots)  # (h, nnz of B_d)
-        self._pattern = pattern
         self._lower = np.zeros(self.n_con)
         self._upper = np.zeros(self.n_con)
         self._solver = osqp.OSQP()
@@ -262,7 +278,10 @@ class ConvexMpc:
                            l=self._lower, u=self._upper, verbose=False, warm_starting=True, polishing=False,
                            eps_abs=cfg.eps, eps_rel=cfg.eps, max_iter=cfg.max_iter,
                            adaptive_rho_interval=25, check_termination=5)
-        self._last_forces: np.ndarray | None = None
+        extension = getattr(self._solver, "_solver", None)  # solve() calls the wrapper's extension solver
+        if not all(hasattr(extension, name) for name in ("update_data_vec", "update_data_mat", "solve", "info")):
+            raise RuntimeError(f"osqp {osqp.__version__}: OSQP._solver lacks what ConvexMpc.solve calls; "
+                               "this stack pins osqp 1.1.3 (requirements.txt)")
 
     def build(self, state: MpcState, command: MpcCommand, contact_plan: np.ndarray) -> dict:
         """QP data (q, l, u, A values) for this step; exposed for tests and benchmarks."""
@@ -271,28 +290,20 @@ class ConvexMpc:
         plan = np.asarray(contact_plan, dtype=bool)
         if plan.shape != (h, NUM_LEGS):
             raise ValueError(f"contact_plan must have shape ({h}, {NUM_LEGS}), got {plan.shape}")
-        _, b = continuous_dynamics(cfg, state)
+        b = _input_matrix(self._inertia_body_inv, self._velocity_rows, state)
         a_d, b_d = self.a_d, self._b_factor @ b
         values = self._a_values
         values[self._b_positions] = -b_d[self._b_mask][None, :]
         x0 = initial_state(cfg, state)
         ref = reference_trajectory(cfg, state, command)
-        q = np.concatenate([-2.0 * self._q_diag * ref.ravel(), np.zeros(h * NU)])
+        q = np.concatenate([self._q_ref_gain * ref.ravel(), self._q_forces])
         n_dyn = h * NX
         lower, upper = self._lower, self._upper
         lower[:NX] = upper[:NX] = a_d @ x0  # x_1 - B_d u_0 = A_d x_0
         lower[NX:n_dyn] = upper[NX:n_dyn] = 0.0
-        force_rows = np.zeros((h, NUM_LEGS, ROWS_PER_FOOT))
-        lo = force_rows.copy()
-        hi = force_rows.copy()
         contact = plan[:, :, None]
-        big = np.inf
-        lo[:, :, :4] = 0.0
-        hi[:, :, :4] = np.where(contact, big, 0.0)
-        lo[:, :, 4] = np.where(plan, cfg.min_normal_force, 0.0)
-        hi[:, :, 4] = np.where(plan, cfg.max_normal_force, 0.0)
-        lower[n_dyn:] = lo.ravel()
-        upper[n_dyn:] = hi.ravel()
+        lower[n_dyn:] = np.where(contact, self._stance_lower, 0.0).ravel()
+        upper[n_dyn:] = np.where(contact, self._stance_upper, 0.0).ravel()
         return {"q": q, "l": lower, "u": upper, "Ax": values, "a_d": a_d, "b_d": b_d, "x0": x0, "ref": ref}
 
     def solve(self, state: MpcState, command: MpcCommand, contact_plan: np.ndarray) -> MpcSolution:
@@ -300,12 +311,19 @@ class ConvexMpc:
         t0 = time.perf_counter()
         data = self.build(state, command, contact_plan)
         t1 = time.perf_counter()
-        self._solver.update(q=data["q"], l=data["l"], u=data["u"], Ax=data["Ax"])
-        result = self._solver.solve(raise_error=False)  # failures are handled below, not raised
+        # Straight to the wrapper's extension solver (osqp 1.1.3, pinned), with the wrapper's own
+        # clipping of l and u: at 500 Hz OSQP.update and OSQP.solve cost more in Python (a module
+        # lookup of OSQP_INFTY per update, a namespace of every info field per solve) than the
+        # vector update. Failures are handled below, not raised.
+        solver = self._solver._solver
+        solver.update_data_vec(q=data["q"], l=np.maximum(data["l"], -_OSQP_INFTY),
+                               u=np.minimum(data["u"], _OSQP_INFTY))
+        solver.update_data_mat(P_x=None, P_i=None, A_x=data["Ax"], A_i=None)
+        solver.solve()
         t2 = time.perf_counter()
-        info = result.info
+        info = solver.info
         status = info.status
-        x = result.x
+        x = solver.solution.x
         # An iterate stopped by max_iter is still used if its constraint violation is small (in N):
         # at 500 Hz the warm-started iterates are close, and a static split is a worse fallback.
         usable = status in ("solved", "solved inaccurate") or (

@@ -35,11 +35,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from a1_common.command import CommandError, JointCommand
+from a1_common.command import CommandError, JointCommand, VelocityCommand
 from a1_common.config import ConfigError, require_choice, require_range, setting
 from a1_common.robot import NUM_JOINTS, NUM_LEGS
 
-from convex_mpc_node.controller import LocomotionController, Observation, VelocityCommand
+from convex_mpc_node.controller import LocomotionController, Observation
 from convex_mpc_node.gait import GaitParams, gait_for_speed, load_hand_tuned_gaits
 
 STOOD_UP_JOINT_ERROR = 0.2  # [rad] largest joint error from the nominal pose to start walking
@@ -260,9 +260,7 @@ class ControllerSupervisor:
         if self._stand_start is None:
             self._stand_start = (now, q.copy())
         t0, q0 = self._stand_start
-        robot = self.controller.robot
-        beta = 1.0 if self.config.stand_time == 0 else min((now - t0) / self.config.stand_time, 1.0)
-        return JointCommand.hold(robot, beta * robot.nominal_joint_angles + (1 - beta) * q0)
+        return JointCommand.stand_up(self.controller.robot, q0, now - t0, self.config.stand_time)
 
     def _hold_command(self) -> VelocityCommand:
         """Standing: the shaped command stays at zero, so walking starts from rest, not from a

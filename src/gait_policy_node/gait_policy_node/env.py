@@ -15,40 +15,30 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from a1_common.command import VelocityCommand
 from a1_common.kinematics import heading_frame, quat_to_matrix
 from a1_sim_bridge.sim import A1Sim, SimConfig
-from convex_mpc_node.controller import ControllerConfig, VelocityCommand, load_controller_config
+from convex_mpc_node.controller import ControllerConfig, load_controller_config
 from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
 from state_estimator_node.estimator import EstimatorConfig, load_estimator_config
 
-from gait_policy_node.rollout import POLICY_PERIOD, ClosedLoop, SpeedProfile
+from gait_policy_node import speed_profiles
+from gait_policy_node.rollout import POLICY_PERIOD, ClosedLoop
+from gait_policy_node.speed_profiles import SpeedProfile
 from gait_policy_node.train_config import OBSERVATION_SIZES, EnvConfig, ProfileConfig, RewardConfig
 
 
 def make_profile(cfg: ProfileConfig, seed: int = 0) -> SpeedProfile:
-    """Desired forward speed against time for an episode; ``random`` draws its speeds from ``seed``."""
+    """Desired forward speed against time for an episode (``steps``: 0 before its first time);
+    ``random`` draws its speeds from ``seed``."""
     if cfg.kind == "constant":
-        return lambda t: VelocityCommand(vx=cfg.speed)
+        return speed_profiles.constant(cfg.speed)
     if cfg.kind == "ramp":
-        return lambda t: VelocityCommand(vx=min(cfg.target_speed, cfg.acceleration * t))
+        return speed_profiles.ramp(cfg.target_speed, cfg.acceleration)
     if cfg.kind == "steps":
-        times = np.array([s[0] for s in cfg.steps], dtype=float)
-        speeds = np.array([s[1] for s in cfg.steps], dtype=float)
-        return lambda t: VelocityCommand(vx=float(speeds[max(np.searchsorted(times, t, side="right") - 1, 0)]))
-    rng = np.random.default_rng([seed, 2])
-    lo, hi = cfg.random_range
-    targets = rng.uniform(lo, hi, size=256)  # one per hold period; episodes end long before they run out
-
-    def random_profile(t: float) -> VelocityCommand:
-        # Piecewise: hold targets[k] during period k, reached from targets[k-1] at `acceleration`.
-        k = min(int(t // cfg.random_hold), len(targets) - 1)
-        start = targets[k - 1] if k > 0 else 0.0
-        elapsed = t - k * cfg.random_hold
-        step = np.clip(targets[k] - start, -cfg.acceleration * elapsed, cfg.acceleration * elapsed)
-        return VelocityCommand(vx=float(start + step))
-
-    return random_profile
+        return speed_profiles.steps(cfg.steps)
+    return speed_profiles.random_holds(cfg.random_range, cfg.random_hold, cfg.acceleration, seed)
 
 
 @dataclass(frozen=True)

@@ -15,17 +15,17 @@ from gait_policy_node.train_config import TrainerConfig
 
 
 class CmaEs:
-    """pycma's CMA-ES with the paper's settings: mean 0, sigma0 0.03, population 32."""
+    """pycma's CMA-ES with the paper's settings: mean 0 (or ``x0``), sigma0 0.03, population 32."""
 
     name = "cmaes"
 
-    def __init__(self, num_params: int, cfg: TrainerConfig) -> None:
+    def __init__(self, num_params: int, cfg: TrainerConfig, x0: np.ndarray | None = None) -> None:
         self.cfg = cfg
         self.num_params = num_params
         rng = np.random.default_rng([cfg.seed, 7])
         options = {"popsize": cfg.population_size, "seed": cfg.seed, "verbose": -9,
                    "randn": lambda *shape: rng.standard_normal(shape)}
-        self._es = cma.CMAEvolutionStrategy(np.zeros(num_params), cfg.sigma0, options)
+        self._es = cma.CMAEvolutionStrategy(_start(num_params, x0), cfg.sigma0, options)
         self._asked: list[np.ndarray] | None = None
 
     @property
@@ -57,14 +57,14 @@ class CmaEs:
 class Ars:
     """Augmented Random Search (V1-t with all directions kept): for each of N directions d,
     returns r+ and r- at theta +/- sigma d; theta += step / (N std(r)) sum (r+ - r-) d.
-    The paper: 16 directions, sigma 0.03, step 0.02, theta_0 = 0."""
+    The paper: 16 directions, sigma 0.03, step 0.02, theta_0 = 0 (or ``x0``)."""
 
     name = "ars"
 
-    def __init__(self, num_params: int, cfg: TrainerConfig) -> None:
+    def __init__(self, num_params: int, cfg: TrainerConfig, x0: np.ndarray | None = None) -> None:
         self.cfg = cfg
         self.num_params = num_params
-        self.theta = np.zeros(num_params)
+        self.theta = _start(num_params, x0)
         self.iteration = 0
         self._directions: np.ndarray | None = None
 
@@ -105,14 +105,24 @@ class Ars:
 Optimizer = CmaEs | Ars
 
 
-def make_optimizer(num_params: int, cfg: TrainerConfig) -> Optimizer:
-    return CmaEs(num_params, cfg) if cfg.algorithm == "cmaes" else Ars(num_params, cfg)
+def _start(num_params: int, x0: np.ndarray | None) -> np.ndarray:
+    """The search's starting point: zeros (the paper), or a given parameter vector (a warm start)."""
+    if x0 is None:
+        return np.zeros(num_params)
+    x0 = np.asarray(x0, dtype=float)
+    if x0.shape != (num_params,) or not np.all(np.isfinite(x0)):
+        raise ValueError(f"x0 must be {num_params} finite parameters, got shape {x0.shape}")
+    return x0.copy()
 
 
-def restore(num_params: int, cfg: TrainerConfig, return_history: np.ndarray) -> Optimizer:
-    """A new optimiser brought to the state after the iterations in ``return_history`` (one row of
-    candidate returns per iteration)."""
-    opt = make_optimizer(num_params, cfg)
+def make_optimizer(num_params: int, cfg: TrainerConfig, x0: np.ndarray | None = None) -> Optimizer:
+    return CmaEs(num_params, cfg, x0) if cfg.algorithm == "cmaes" else Ars(num_params, cfg, x0)
+
+
+def restore(num_params: int, cfg: TrainerConfig, return_history: np.ndarray, x0: np.ndarray | None = None) -> Optimizer:
+    """A new optimiser started at ``x0`` and brought to the state after the iterations in
+    ``return_history`` (one row of candidate returns per iteration)."""
+    opt = make_optimizer(num_params, cfg, x0)
     for returns in np.asarray(return_history, dtype=float).reshape(-1, opt.population_size):
         opt.ask()
         opt.tell(returns)

@@ -14,28 +14,24 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from a1_common.command import JointCommand
+from a1_common.command import JointCommand, VelocityCommand
 from a1_common.kinematics import heading_frame, quat_to_matrix
 from a1_common.robot import FALL_HEIGHT
 from a1_interface.sensors import SensorReadings
 from a1_sim_bridge.sim import A1Sim, SimConfig
-from convex_mpc_node.controller import ControllerConfig, LocomotionController, Observation, VelocityCommand
+from convex_mpc_node.controller import ControllerConfig, LocomotionController, Observation
 from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import GaitParams
 from state_estimator_node.estimator import EstimatorConfig, SensorSample, VelocityEstimator
 
+from gait_policy_node.speed_profiles import SpeedProfile
 from gait_policy_node.train_config import VELOCITY_SOURCES
 
 POLICY_PERIOD = 0.05  # [s]: gait parameters change at 20 Hz
 FALL_TILT = np.radians(30.0)  # a fall: body tilted more than this ...
+_FALL_UP_Z = np.cos(FALL_TILT)  # ... i.e. the body z axis's world z below this
 
-SpeedProfile = Callable[[float], VelocityCommand]
 GaitSchedule = Callable[[float, VelocityCommand], GaitParams]
-
-
-def ramp_profile(target: float, acceleration: float = 1.0) -> SpeedProfile:
-    """Forward speed 0 -> target [m/s] at ``acceleration`` [m/s^2], then held."""
-    return lambda t: VelocityCommand(vx=min(target, acceleration * t))
 
 
 @dataclass
@@ -82,7 +78,7 @@ def sample_from_readings(r: SensorReadings) -> SensorSample:
 def tilted_or_low(position: np.ndarray, orientation: np.ndarray) -> bool:
     x, y = orientation[0], orientation[1]
     up_z = 1 - 2 * (x * x + y * y)  # world z of the body z axis
-    return bool(up_z < np.cos(FALL_TILT) or position[2] < FALL_HEIGHT)
+    return bool(up_z < _FALL_UP_Z or position[2] < FALL_HEIGHT)
 
 
 class ClosedLoop:

@@ -19,7 +19,7 @@ from convex_mpc_node.gait import GaitParams
 
 from gait_policy_node.env import ControlRecord, GaitEnv
 from gait_policy_node.learned_policy import NetworkPolicy
-from gait_policy_node.rollout import SpeedProfile
+from gait_policy_node.speed_profiles import SpeedProfile
 from gait_policy_node.train_config import TrainConfig, train_config_from_mapping
 
 

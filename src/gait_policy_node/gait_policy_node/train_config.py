@@ -63,7 +63,7 @@ class ProfileConfig:
     target_speed: float = 2.5  # ramp: 0 -> target at `acceleration`, then held [m/s]
     acceleration: float = 1.0  # [m/s^2]
     speed: float = 1.0  # constant [m/s]
-    steps: tuple = ((0.0, 0.5), (5.0, 1.5), (10.0, 2.5))  # steps: (start time [s], speed [m/s]) pairs
+    steps: tuple = ((0.0, 0.5), (5.0, 1.5), (10.0, 2.5))  # steps: (start time [s], speed [m/s]); 0 before the first
     random_range: tuple = (0.0, 2.5)  # random: speeds drawn uniformly in this range [m/s] ...
     random_hold: float = 4.0  # ... each held this long [s], reached at `acceleration`
 

@@ -4,6 +4,7 @@
              [--backend process|ray|serial] [--workers N] [--address ADDR] [--iterations N]
              [--run-dir DIR]
     train_es --resume DIR [--iterations N] [--backend ...] [--workers N]
+    train_es --init-from POLICY.npz ...   (a new run whose search starts at that policy)
 
 A run folder (default ``runs/<algorithm>-<time>/``) holds: ``config.yaml`` (the resolved config),
 ``log.csv`` (one row per iteration), ``learning_curve.png``, ``checkpoint.npz`` (optimiser state
@@ -13,6 +14,11 @@ the best evaluation return so far). ``--resume`` replays the checkpoint and cont
 the run stopped; iterations after the last checkpoint are redone identically. It first removes the
 temporary files of a session killed mid-write and rewrites policy.npz, log.csv and the curve from
 the checkpoint (a kill between checkpoint.npz and them leaves them one checkpoint behind).
+
+``--init-from`` starts a new run's search at a trained policy instead of at zero (the paper): a
+second stage on another speed profile or reward, say. The file is copied into the run folder as
+``initial_policy.npz`` (resume reads it from there), and must have this run's network, observation
+and action decoding (its config hash).
 """
 
 from __future__ import annotations
@@ -34,6 +40,8 @@ from tqdm import tqdm
 from gait_policy_node.es import Optimizer, make_optimizer, restore
 from gait_policy_node.learned_policy import (
     NetworkPolicy,
+    load_policy,
+    policy_file,
     read_npz,
     remove_stale_temporaries,
     save_policy,
@@ -46,6 +54,7 @@ LOG_COLUMNS = ("iteration", "wall_time_s", "episodes", "policy_steps", "mean_ret
                "min_return", "falls", "step_size", "eval_return", "eval_speed_error", "eval_cost_of_transport",
                "eval_fell", "workers")
 EVAL_SEED = 0
+INITIAL_POLICY = "initial_policy.npz"  # a warm-started run's starting point, in its folder
 # What --resume may change: how and how long to run, not what is learned.
 RESUMABLE_OVERRIDES = ("workers.", "trainer.iterations", "trainer.checkpoint_every", "trainer.eval_every")
 
@@ -67,15 +76,21 @@ class Trainer:
         self.best_eval = -np.inf
         self.elapsed = 0.0  # wall time of earlier sessions of this run [s]
         remove_stale_temporaries(run_dir)  # a session killed mid-write left it; it can never complete
+        self.x0 = self._initial_params()
         checkpoint = run_dir / "checkpoint.npz"
         if checkpoint.exists():
             self._load_checkpoint(checkpoint)
         else:
-            self.optimizer: Optimizer = make_optimizer(self.policy.num_params, config.trainer)
+            self.optimizer: Optimizer = make_optimizer(self.policy.num_params, config.trainer, self.x0)
 
     @property
     def iteration(self) -> int:
         return len(self.return_history)
+
+    def _initial_params(self) -> np.ndarray | None:
+        """The warm start's parameters (``INITIAL_POLICY`` in the run folder), None for the paper's zeros."""
+        path = self.run_dir / INITIAL_POLICY
+        return _check_initial_policy(path, self.config) if path.exists() else None
 
     def _load_checkpoint(self, path: Path) -> None:
         data = read_npz(path, "checkpoint")
@@ -84,7 +99,7 @@ class Trainer:
             raise ConfigError(f"{path} was written with another policy or algorithm config; "
                               "resume with the run's own config.yaml")
         history = np.asarray(data["return_history"], dtype=float)
-        self.optimizer = restore(self.policy.num_params, self.config.trainer, history)
+        self.optimizer = restore(self.policy.num_params, self.config.trainer, history, self.x0)
         self.return_history = list(history)
         rows = np.asarray(data["log"], dtype=float)
         missing = len(LOG_COLUMNS) - rows.shape[1] if rows.ndim == 2 else 0  # runs from before "workers"
@@ -231,6 +246,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int)
     parser.add_argument("--run-dir", type=Path, help="run folder (default: runs/<algorithm>-<time>)")
     parser.add_argument("--resume", type=Path, metavar="RUN_DIR", help="continue the run in this folder")
+    parser.add_argument("--init-from", type=Path, metavar="POLICY",
+                        help="a new run's search starts at this policy file (default: zeros, as the paper)")
     return parser.parse_args(argv)
 
 
@@ -248,8 +265,9 @@ def prepare_run(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
         run_dir = args.resume
         if not (run_dir / "config.yaml").exists():
             raise ConfigError(f"--resume {run_dir}: no config.yaml there (not a train_es run folder)")
-        if args.config or args.run_dir:
-            raise ConfigError("--resume takes the run's own config.yaml; drop --config and --run-dir")
+        if args.config or args.run_dir or args.init_from:
+            raise ConfigError("--resume takes the run's own config.yaml and start; drop --config, --run-dir "
+                              "and --init-from")
         bad = [o for o in overrides if not o.startswith(RESUMABLE_OVERRIDES)]
         if bad:
             raise ConfigError(f"--resume can only change {list(RESUMABLE_OVERRIDES)}, not {bad}")
@@ -259,9 +277,30 @@ def prepare_run(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
     run_dir = args.run_dir or Path("runs") / f"{config.trainer.algorithm}-{time.strftime('%Y%m%d-%H%M%S')}"
     if (run_dir / "checkpoint.npz").exists():
         raise ConfigError(f"{run_dir} already holds a run; continue it with --resume {run_dir}")
+    if args.init_from is not None:  # checked before the run folder exists
+        if not policy_file(args.init_from).is_file():
+            raise ConfigError(f"--init-from {args.init_from}: no such file")
+        _check_initial_policy(args.init_from, config)
     run_dir.mkdir(parents=True, exist_ok=True)
+    if args.init_from is not None:
+        tmp = run_dir / f".{INITIAL_POLICY}.tmp"
+        tmp.write_bytes(policy_file(args.init_from).read_bytes())
+        tmp.replace(run_dir / INITIAL_POLICY)
     (run_dir / "config.yaml").write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
     return config, run_dir
+
+
+def _check_initial_policy(path: str | Path, config: TrainConfig) -> np.ndarray:
+    """The parameters of the policy file a run starts from; ConfigError unless its network,
+    observation, action decoding and observation scaling are this run's."""
+    policy, policy_config = load_policy(path)
+    if policy_config.policy_hash() != config.policy_hash():
+        raise ConfigError(f"{path}: its network, observation or action decoding differs from this run's "
+                          f"(config hash {policy_config.policy_hash()}, run {config.policy_hash()})")
+    fresh = NetworkPolicy.from_config(config)
+    if not (np.array_equal(policy.obs_mean, fresh.obs_mean) and np.array_equal(policy.obs_std, fresh.obs_std)):
+        raise ConfigError(f"{path}: its observation scaling differs from what train_es starts a policy with")
+    return policy.params.copy()
 
 
 def _raise_interrupt(signum, frame) -> None:

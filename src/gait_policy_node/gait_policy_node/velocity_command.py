@@ -3,7 +3,8 @@
 Interchangeable with ``ros2 topic pub /cmd_vel geometry_msgs/msg/Twist ...``. Profiles:
 - constant: vx, vy, yaw_rate from the parameters;
 - ramp: forward speed 0 -> ``speed`` at ``acceleration`` (the paper's 0 -> 2.5 m/s at 1 m/s^2), held;
-- steps: ``steps`` = "t0:v0,t1:v1,..." forward speed v_i from time t_i [s].
+- steps: ``steps`` = "t0:v0,t1:v1,..." forward speed v_i from time t_i [s] (0 before t0).
+The profiles are ``speed_profiles``, the ones the training episodes and in-process tools use.
 Time is the node's clock (sim time with use_sim_time), counted from the first tick; nothing but
 zero is sent for the first ``start_delay`` seconds (the controller stands up meanwhile); with
 ``duration`` > 0 it publishes zero and exits after that many seconds.
@@ -28,6 +29,7 @@ from geometry_msgs.msg import Twist
 from rclpy.node import Node
 
 from a1_interface import contract
+from gait_policy_node import speed_profiles
 
 PROFILES = ("constant", "ramp", "steps")
 
@@ -38,7 +40,7 @@ class NodeParameters:
     speed: float = setting(2.5, "forward speed of the constant and ramp profiles [m/s]")
     lateral: float = setting(0.0, "lateral speed [m/s]")
     yaw_rate: float = setting(0.0, "yaw rate [rad/s]")
-    acceleration: float = setting(1.0, "ramp and steps: acceleration toward the next speed [m/s^2]")
+    acceleration: float = setting(1.0, "ramp: acceleration to speed [m/s^2]")
     steps: str = setting("0:0.0", "steps profile: 'time:speed,...' [s:m/s], times increasing")
     rate: float = setting(20.0, "/cmd_vel publish rate [Hz]")
     duration: float = setting(0.0, "stop publishing after this long [s] (0: never)")
@@ -85,16 +87,19 @@ class VelocityCommandNode(Node):
         constrain_parameters(self, p, constraints)  # all read-only: read at start-up
         self.pub = self.create_publisher(Twist, contract.CMD_VEL, COMMAND_QOS)
         self._start = None
+        if self.profile == "constant":
+            self._profile = speed_profiles.constant(self.speed, self.lateral, self.yaw_rate)
+        elif self.profile == "ramp":
+            self._profile = speed_profiles.ramp(self.speed, self.acceleration)
+        else:
+            self._profile = speed_profiles.steps(self.steps)
         self.create_timer(1.0 / rate, self._tick)
 
     def command_at(self, t: float) -> Twist:
+        """The profile's command ``t`` seconds after it began, as a Twist."""
+        command = self._profile(t)
         msg = Twist()
-        if self.profile == "constant":
-            msg.linear.x, msg.linear.y, msg.angular.z = self.speed, self.lateral, self.yaw_rate
-        elif self.profile == "ramp":
-            msg.linear.x = min(abs(self.speed), self.acceleration * t) * (1 if self.speed >= 0 else -1)
-        else:
-            msg.linear.x = next((v for t0, v in reversed(self.steps) if t >= t0), 0.0)
+        msg.linear.x, msg.linear.y, msg.angular.z = command.vx, command.vy, command.yaw_rate
         return msg
 
     def _tick(self) -> None:

@@ -1,0 +1,146 @@
+"""compare_policies: episode returns of gait policies over several seeds, side by side.
+
+    compare_policies POLICY [POLICY ...] [--config RUN/config.yaml] [--seeds N] [--first-seed S]
+                     [--workers N] [--lags DEG ... --below V]
+
+train_es keeps as "best" the mean whose one evaluation episode (seed 0) scored highest, so two
+candidates an evaluation apart may differ by no more than one episode's luck. This runs every
+POLICY (``learned``, a policy .npz, or a hand-tuned gait name, as eval_policy takes) on the same
+seeds of one training config (``--config``, default: the first policy file's own) and prints each
+one's return (mean, standard deviation and range over the seeds), falls, cost of transport and
+speed error; the seed-to-seed spread is the noise any difference between them is measured against.
+``--lags`` adds, for each policy and lag, the policy with its phase offsets replaced below the
+commanded speed ``--below`` by the trot-to-walk family's (sweep_gaits.lag_family_offsets; its own
+f and p_swing kept): whether a four-beat footfall at low speed would pay in this episode, i.e.
+whether the optimiser is leaving return there. Ends with one JSON line of the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+from a1_common.config import ConfigError
+from convex_mpc_node.gait import GaitParams
+
+from gait_policy_node.env import GaitEnv
+from gait_policy_node.eval_policy import ObservationPolicy, resolve_policy
+from gait_policy_node.rollout_workers import EpisodeStats, run_episode
+from gait_policy_node.sweep_gaits import lag_family_offsets
+from gait_policy_node.train_config import TrainConfig, load_train_config, train_config_from_mapping
+
+Variant = tuple[str, float | None, float]  # (policy spec, lag [deg] or None for the policy as it is, below [m/s])
+
+
+def with_low_speed_lag(policy: ObservationPolicy, lag_deg: float, below: float) -> ObservationPolicy:
+    """``policy`` whose phase offsets, while the commanded speed (observation 0) [m/s] is under
+    ``below``, are the lag family's for ``lag_deg``; its stepping frequency and swing ratio kept."""
+    offsets = lag_family_offsets(lag_deg)
+
+    def wrapped(obs: np.ndarray) -> GaitParams:
+        gait = policy(obs)
+        if abs(float(obs[0])) >= below:
+            return gait
+        return GaitParams(gait.stepping_frequency, gait.swing_ratio, offsets)
+    return wrapped
+
+
+def label(variant: Variant) -> str:
+    spec, lag, below = variant
+    return spec if lag is None else f"{spec} @ lag {lag:+g} below {below:g} m/s"
+
+
+def _episode(variant: Variant, config_dict: dict, seed: int) -> EpisodeStats:
+    """One episode of a policy variant on ``config_dict``'s env and reward (runs in a worker process)."""
+    spec, lag, below = variant
+    policy, _ = resolve_policy(spec)
+    if lag is not None:
+        policy = with_low_speed_lag(policy, lag, below)
+    config = train_config_from_mapping(config_dict)
+    env = GaitEnv(config.env, config.reward)
+    try:
+        return run_episode(env, policy, seed)[0]
+    finally:
+        env.close()
+
+
+def compare(variants: list[Variant], config: TrainConfig, seeds: list[int],
+            workers: int) -> dict[str, list[EpisodeStats]]:
+    """Every policy variant on every seed; the stats in seed order, per variant's label."""
+    config_dict = config.to_dict()
+    jobs = [(variant, seed) for variant in variants for seed in seeds]
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(_episode, variant, config_dict, seed) for variant, seed in jobs]
+        results: dict[str, list[EpisodeStats]] = {label(v): [] for v in variants}
+        for (variant, seed), future in zip(jobs, futures, strict=True):
+            stats = future.result()
+            results[label(variant)].append(stats)
+            print(f"[compare_policies] {label(variant)} seed {seed}: return {stats.episode_return:.2f}"
+                  f"{' (fell)' if stats.fell else ''}", flush=True)
+    return results
+
+
+def summary(stats: list[EpisodeStats]) -> dict[str, float]:
+    returns = np.array([s.episode_return for s in stats])
+    return {"return_mean": float(returns.mean()), "return_std": float(returns.std(ddof=1)) if len(returns) > 1 else 0.0,
+            "return_min": float(returns.min()), "return_max": float(returns.max()),
+            "falls": int(sum(s.fell for s in stats)),
+            "cost_of_transport_mean": float(np.mean([s.cost_of_transport for s in stats])),
+            "speed_error_mean": float(np.mean([s.speed_error for s in stats]))}
+
+
+def _parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="compare_policies", description=__doc__.split("\n")[0])
+    parser.add_argument("policies", nargs="+", metavar="POLICY",
+                        help="learned | policy .npz | scheduled | walk | slow_trot | rapid_trot | fly_trot")
+    parser.add_argument("--config", help="training config whose env and reward every policy is run on "
+                                         "(default: the first policy file's own, else config/train_es.yaml)")
+    parser.add_argument("--seeds", type=int, default=8, help="episodes per policy (default 8)")
+    parser.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--lags", type=float, nargs="+", default=[], metavar="DEG",
+                        help="also run each policy with these diagonal lags [deg] below --below")
+    parser.add_argument("--below", type=float, default=1.25, help="commanded speed [m/s] under which --lags apply")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse_args(argv)
+    try:
+        if not 1 <= args.seeds <= 1000:
+            raise ConfigError(f"--seeds must be in [1, 1000], got {args.seeds}")
+        if not 1 <= args.workers <= 256:
+            raise ConfigError(f"--workers must be in [1, 256], got {args.workers}")
+        if args.first_seed < 0:
+            raise ConfigError(f"--first-seed must be >= 0, got {args.first_seed}")
+        if not 0.0 < args.below <= 5.0:
+            raise ConfigError(f"--below must be in (0, 5] m/s, got {args.below}")
+        for lag in args.lags:
+            lag_family_offsets(lag)  # ConfigError naming the range
+        configs = {spec: resolve_policy(spec)[1] for spec in args.policies}  # a bad one fails before any episode
+        own = [c for spec, c in configs.items() if spec.endswith(".npz") or spec == "learned"]
+        config = load_train_config(args.config) if args.config else (own[0] if own else load_train_config(None))
+    except (ConfigError, OSError) as exc:
+        print(f"compare_policies: {exc}", file=sys.stderr)
+        return 2
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    variants: list[Variant] = [(spec, lag, args.below) for spec in args.policies for lag in (None, *args.lags)]
+    results = compare(variants, config, seeds, min(args.workers, len(seeds) * len(variants)))
+    rows = {spec: summary(stats) for spec, stats in results.items()}
+    width = max(len(s) for s in rows)
+    print(f"\n{'policy':<{width}}  return mean  std    min      max      falls  CoT    speed error^2")
+    for spec, r in rows.items():
+        print(f"{spec:<{width}}  {r['return_mean']:11.2f}  {r['return_std']:5.2f}  {r['return_min']:7.2f}  "
+              f"{r['return_max']:7.2f}  {r['falls']:5d}  {r['cost_of_transport_mean']:.3f}  "
+              f"{r['speed_error_mean']:.5f}")
+    print(json.dumps({"seeds": seeds, "episode_steps": config.env.episode_steps,
+                      "profile": config.env.profile.kind, "policies": rows}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,77 @@
+"""compare_policies: the same seeds for every policy, and the figures are those of run_episode."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from convex_mpc_node.gait import GaitParams
+from gait_policy_node.compare_policies import main, with_low_speed_lag
+from gait_policy_node.env import GaitEnv
+from gait_policy_node.learned_policy import NetworkPolicy, load_policy, save_policy
+from gait_policy_node.rollout_workers import run_episode
+from gait_policy_node.sweep_gaits import lag_family_offsets
+from gait_policy_node.train_config import load_train_config
+
+SHORT = ["env.episode_steps=6", "policy.hidden_units=8"]
+
+
+@pytest.fixture
+def two_policies(tmp_path):
+    config = load_train_config(None, SHORT)
+    rng = np.random.default_rng(3)
+    size = NetworkPolicy.from_config(config).num_params
+    paths = []
+    for name in ("a", "b"):
+        policy = NetworkPolicy.from_config(config, 0.3 * rng.standard_normal(size))
+        save_policy(tmp_path / f"{name}.npz", policy, config)
+        paths.append(tmp_path / f"{name}.npz")
+    return config, paths
+
+
+def test_every_policy_runs_the_same_seeds_and_the_figures_are_run_episodes(two_policies, capsys):
+    config, (a, b) = two_policies
+    assert main([str(a), str(b), "--seeds", "2", "--first-seed", "5", "--workers", "2"]) == 0
+    out = capsys.readouterr().out
+    figures = json.loads(out.strip().splitlines()[-1])
+    assert figures["seeds"] == [5, 6] and figures["episode_steps"] == 6
+    env = GaitEnv(config.env, config.reward)
+    try:
+        for path in (a, b):
+            policy = load_policy(path)[0]
+            returns = [run_episode(env, policy, seed)[0].episode_return for seed in (5, 6)]
+            row = figures["policies"][str(path)]
+            assert row["return_mean"] == pytest.approx(np.mean(returns), rel=1e-12)
+            assert row["return_std"] == pytest.approx(np.std(returns, ddof=1), rel=1e-9, abs=1e-12)
+            assert row["return_min"] == pytest.approx(min(returns), rel=1e-12)
+    finally:
+        env.close()
+    assert figures["policies"][str(a)] != figures["policies"][str(b)]  # two policies, not one twice
+
+
+def test_bad_arguments_name_what_is_wrong(two_policies, capsys, tmp_path):
+    _, (a, _) = two_policies
+    assert main([str(a), "--seeds", "0"]) == 2
+    assert "--seeds must be in [1, 1000], got 0" in capsys.readouterr().err
+    assert main([str(a), str(tmp_path / "missing.npz")]) == 2
+    assert "missing.npz" in capsys.readouterr().err
+    assert main([str(a), "canter"]) == 2
+    assert "canter" in capsys.readouterr().err
+
+
+def test_a_low_speed_lag_replaces_only_the_offsets_and_only_below_the_speed(two_policies, capsys):
+    _, (a, _) = two_policies
+    policy = load_policy(a)[0]
+    walking = with_low_speed_lag(policy, -45.0, below=1.0)
+    slow, fast = np.array([0.5, 0.4, 0.0, 0.0]), np.array([1.5, 1.4, 0.0, 0.0])
+    own = policy(slow)
+    assert walking(slow) == GaitParams(own.stepping_frequency, own.swing_ratio, lag_family_offsets(-45.0))
+    assert walking(fast) == policy(fast)
+    assert main([str(a), "--seeds", "1", "--workers", "1", "--lags", "-45", "--below", "1.0"]) == 0
+    rows = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["policies"]
+    assert set(rows) == {str(a), f"{a} @ lag -45 below 1 m/s"}
+    assert main([str(a), "--lags", "200"]) == 2
+    assert "--lags must be in [-180, 180] deg, got 200" in capsys.readouterr().err
+    assert main([str(a), "--lags", "-45", "--below", "0"]) == 2
+    assert "--below must be in (0, 5] m/s, got 0.0" in capsys.readouterr().err
