@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from convex_mpc_node.gait import GaitParams
-from gait_policy_node.compare_policies import main, with_low_speed_lag
+from gait_policy_node.compare_policies import load_timing, main, with_low_speed_lag
 from gait_policy_node.env import GaitEnv
 from gait_policy_node.learned_policy import NetworkPolicy, load_policy, save_policy
 from gait_policy_node.rollout_workers import run_episode
@@ -75,3 +75,25 @@ def test_a_low_speed_lag_replaces_only_the_offsets_and_only_below_the_speed(two_
     assert "--lags must be in [-180, 180] deg, got 200" in capsys.readouterr().err
     assert main([str(a), "--lags", "-45", "--below", "0"]) == 2
     assert "--below must be in (0, 5] m/s, got 0.0" in capsys.readouterr().err
+
+
+def test_swept_timing_sets_f_and_p_swing_from_the_sweeps_best_rows(two_policies, capsys, tmp_path):
+    _, (a, _) = two_policies
+    header = "name,target_speed,frequency,swing_ratio,speed,speed_error,power,cost_of_transport,reward,fell\n"
+    slow, fast = tmp_path / "slow.csv", tmp_path / "fast.csv"
+    slow.write_text(header + "lag-30,0.5,1.5,0.3,0.5,0,1,1,1,False\nlag+0,0.5,1.0,0.2,0.5,0,1,1,1,False\n")
+    fast.write_text(header + "lag-30,1,2.5,0.4,1,0,1,1,1,False\n")
+    timing = load_timing([str(slow), str(fast)], -30.0)
+    assert timing == ((0.5, 1.0), (1.5, 2.5), (0.3, 0.4))
+    policy = load_policy(a)[0]
+    walking = with_low_speed_lag(policy, -30.0, below=1.25, timing=timing)
+    assert walking(np.array([0.75, 0.7, 0.0, 0.0])) == GaitParams(2.0, pytest.approx(0.35), lag_family_offsets(-30.0))
+    assert walking(np.array([0.2, 0.2, 0.0, 0.0])).stepping_frequency == 1.5  # held below the swept speeds
+    assert walking(np.array([1.5, 1.4, 0.0, 0.0])) == policy(np.array([1.5, 1.4, 0.0, 0.0]))
+    assert main([str(a), "--seeds", "1", "--workers", "1", "--lags", "-30", "--timing", str(slow), str(fast)]) == 0
+    rows = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["policies"]
+    assert set(rows) == {str(a), f"{a} @ lag -30 swept timing below 1.25 m/s"}
+    assert main([str(a), "--lags", "-45", "--timing", str(slow)]) == 2
+    assert "--timing: no row named lag-45" in capsys.readouterr().err
+    assert main([str(a), "--timing", str(slow)]) == 2
+    assert "give --lags too" in capsys.readouterr().err

@@ -1,7 +1,7 @@
 """compare_policies: episode returns of gait policies over several seeds, side by side.
 
     compare_policies POLICY [POLICY ...] [--config RUN/config.yaml] [--seeds N] [--first-seed S]
-                     [--workers N] [--lags DEG ... --below V]
+                     [--workers N] [--lags DEG ... --below V [--timing BEST.csv ...]]
 
 train_es keeps as "best" the mean whose one evaluation episode (seed 0) scored highest, so two
 candidates an evaluation apart may differ by no more than one episode's luck. This runs every
@@ -12,12 +12,16 @@ speed error; the seed-to-seed spread is the noise any difference between them is
 ``--lags`` adds, for each policy and lag, the policy with its phase offsets replaced below the
 commanded speed ``--below`` by the trot-to-walk family's (sweep_gaits.lag_family_offsets; its own
 f and p_swing kept): whether a four-beat footfall at low speed would pay in this episode, i.e.
-whether the optimiser is leaving return there. Ends with one JSON line of the figures.
+whether the optimiser is leaving return there. ``--timing`` takes f and p_swing for those variants
+from sweep_gaits ``best.csv`` files instead (each lag's best of the grid, interpolated linearly over
+the commanded speed and held beyond the swept speeds): the four-beat gait with the timing that made
+it cheapest at steady speed. Ends with one JSON line of the figures.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import sys
@@ -30,36 +34,66 @@ from convex_mpc_node.gait import GaitParams
 from gait_policy_node.env import GaitEnv
 from gait_policy_node.eval_policy import ObservationPolicy, resolve_policy
 from gait_policy_node.rollout_workers import EpisodeStats, run_episode
-from gait_policy_node.sweep_gaits import lag_family_offsets
+from gait_policy_node.sweep_gaits import lag_family_offsets, lag_name
 from gait_policy_node.train_config import TrainConfig, load_train_config, train_config_from_mapping
 
-Variant = tuple[str, float | None, float]  # (policy spec, lag [deg] or None for the policy as it is, below [m/s])
+# Stepping frequency [Hz] and swing ratio against commanded speed [m/s]: (speeds, f, p_swing), speeds increasing.
+Timing = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
+# (policy spec, lag [deg] or None for the policy as it is, below [m/s], timing or None for the policy's own)
+Variant = tuple[str, float | None, float, Timing | None]
 
 
-def with_low_speed_lag(policy: ObservationPolicy, lag_deg: float, below: float) -> ObservationPolicy:
+def load_timing(paths: list[str], lag_deg: float) -> Timing:
+    """The best frequency and swing ratio of ``lag_deg`` at each swept speed, from sweep_gaits
+    ``best.csv`` files (rows named lag+30, lag-45, ...); one speed in two files: the later file wins."""
+    by_speed: dict[float, tuple[float, float]] = {}
+    for path in paths:
+        with open(path, newline="", encoding="utf-8") as handle:
+            try:
+                for row in csv.DictReader(handle):
+                    if row.get("name") == lag_name(lag_deg):
+                        by_speed[float(row["target_speed"])] = (float(row["frequency"]), float(row["swing_ratio"]))
+            except (KeyError, ValueError) as exc:
+                raise ConfigError(f"--timing: {path} is not a sweep_gaits best.csv ({exc!r})") from exc
+    if not by_speed:
+        raise ConfigError(f"--timing: no row named {lag_name(lag_deg)} in {', '.join(paths)}")
+    speeds = sorted(by_speed)
+    return tuple(speeds), tuple(by_speed[v][0] for v in speeds), tuple(by_speed[v][1] for v in speeds)
+
+
+def with_low_speed_lag(policy: ObservationPolicy, lag_deg: float, below: float,
+                       timing: Timing | None = None) -> ObservationPolicy:
     """``policy`` whose phase offsets, while the commanded speed (observation 0) [m/s] is under
-    ``below``, are the lag family's for ``lag_deg``; its stepping frequency and swing ratio kept."""
+    ``below``, are the lag family's for ``lag_deg``; its stepping frequency and swing ratio kept,
+    or taken from ``timing`` at the commanded speed."""
     offsets = lag_family_offsets(lag_deg)
 
     def wrapped(obs: np.ndarray) -> GaitParams:
         gait = policy(obs)
-        if abs(float(obs[0])) >= below:
+        speed = abs(float(obs[0]))
+        if speed >= below:
             return gait
-        return GaitParams(gait.stepping_frequency, gait.swing_ratio, offsets)
+        if timing is None:
+            return GaitParams(gait.stepping_frequency, gait.swing_ratio, offsets)
+        speeds, frequencies, swing_ratios = timing
+        return GaitParams(float(np.interp(speed, speeds, frequencies)), float(np.interp(speed, speeds, swing_ratios)),
+                          offsets)
     return wrapped
 
 
 def label(variant: Variant) -> str:
-    spec, lag, below = variant
-    return spec if lag is None else f"{spec} @ lag {lag:+g} below {below:g} m/s"
+    spec, lag, below, timing = variant
+    if lag is None:
+        return spec
+    return f"{spec} @ lag {lag:+g}{' swept timing' if timing else ''} below {below:g} m/s"
 
 
 def _episode(variant: Variant, config_dict: dict, seed: int) -> EpisodeStats:
     """One episode of a policy variant on ``config_dict``'s env and reward (runs in a worker process)."""
-    spec, lag, below = variant
+    spec, lag, below, timing = variant
     policy, _ = resolve_policy(spec)
     if lag is not None:
-        policy = with_low_speed_lag(policy, lag, below)
+        policy = with_low_speed_lag(policy, lag, below, timing)
     config = train_config_from_mapping(config_dict)
     env = GaitEnv(config.env, config.reward)
     try:
@@ -105,6 +139,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--lags", type=float, nargs="+", default=[], metavar="DEG",
                         help="also run each policy with these diagonal lags [deg] below --below")
     parser.add_argument("--below", type=float, default=1.25, help="commanded speed [m/s] under which --lags apply")
+    parser.add_argument("--timing", nargs="+", default=[], metavar="BEST_CSV",
+                        help="sweep_gaits best.csv files: --lags variants take f and p_swing from them")
     return parser.parse_args(argv)
 
 
@@ -121,6 +157,9 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f"--below must be in (0, 5] m/s, got {args.below}")
         for lag in args.lags:
             lag_family_offsets(lag)  # ConfigError naming the range
+        if args.timing and not args.lags:
+            raise ConfigError("--timing applies to --lags variants: give --lags too")
+        timings = {lag: load_timing(args.timing, lag) for lag in args.lags} if args.timing else {}
         configs = {spec: resolve_policy(spec)[1] for spec in args.policies}  # a bad one fails before any episode
         own = [c for spec, c in configs.items() if spec.endswith(".npz") or spec == "learned"]
         config = load_train_config(args.config) if args.config else (own[0] if own else load_train_config(None))
@@ -128,7 +167,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"compare_policies: {exc}", file=sys.stderr)
         return 2
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    variants: list[Variant] = [(spec, lag, args.below) for spec in args.policies for lag in (None, *args.lags)]
+    variants: list[Variant] = [(spec, lag, args.below, timings.get(lag)) for spec in args.policies
+                               for lag in (None, *args.lags)]
     results = compare(variants, config, seeds, min(args.workers, len(seeds) * len(variants)))
     rows = {spec: summary(stats) for spec, stats in results.items()}
     width = max(len(s) for s in rows)
