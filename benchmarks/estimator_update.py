@@ -15,23 +15,23 @@ import time
 
 import numpy as np
 from a1_common.command import JointCommand
+from a1_interface.sensors import SensorReadings
 from a1_sim_bridge.sim import A1Sim
-from gait_policy_node.rollout import sample_from_readings
-from state_estimator_node.estimator import SensorSample, VelocityEstimator
+from state_estimator_node.estimator import VelocityEstimator, load_estimator_config
 
 
-def samples_from_sim(count: int) -> list[SensorSample]:
+def samples_from_sim(count: int) -> list[SensorReadings]:
     with A1Sim() as sim:
         hold = JointCommand.hold(sim.robot)
         out = []
         for _ in range(count):
             r = sim.step(hold)
-            out.append(sample_from_readings(r))
+            out.append(r)
         return out
 
 
-def time_updates(samples: list[SensorSample]) -> np.ndarray:
-    est = VelocityEstimator()
+def time_updates(samples: list[SensorReadings]) -> np.ndarray:
+    est = VelocityEstimator(load_estimator_config())
     costs = np.empty(len(samples))
     for i, s in enumerate(samples):
         t0 = time.perf_counter()

@@ -16,7 +16,8 @@ from a1_common.command import MAX_FEEDFORWARD_TORQUE, MAX_KD, MAX_KP, CommandWat
 from a1_common.config import ConfigError
 from a1_common.robot import a1
 from a1_interface.conversions import motor_command_msg, stamp_from_ns
-from convex_mpc_node.controller import LocomotionController, Observation
+from a1_interface.sensors import SensorReadings
+from convex_mpc_node.controller import LocomotionController, Observation, load_controller_config
 from convex_mpc_node.gait import TWO_PI, GaitParams, load_hand_tuned_gaits
 from convex_mpc_node.supervisor import ControllerSupervisor, SupervisorConfig
 from hypothesis import example, given
@@ -119,7 +120,7 @@ def standing_obs(**changes) -> Observation:
 
 @pytest.fixture(scope="module")
 def controller():
-    return LocomotionController(GAITS["slow_trot"])
+    return LocomotionController(GAITS["slow_trot"], load_controller_config())
 
 
 @given(vx=hostile_float, vy=hostile_float, yaw=hostile_float)
@@ -128,7 +129,7 @@ def controller():
 @example(vx=-50.0, vy=0.0, yaw=0.0)
 def test_cmd_vel_is_rejected_if_not_finite_else_clamped(controller, fuzz_cases, vx, vy, yaw):
     cfg = SupervisorConfig(max_acceleration=20.0)
-    sup = ControllerSupervisor(controller, cfg)
+    sup = ControllerSupervisor(controller, GAITS, cfg)
     accepted = sup.on_cmd_vel(vx, vy, yaw, now=0.0)
     finite = all(math.isfinite(v) for v in (vx, vy, yaw))
     fuzz_cases["/cmd_vel -> supervisor"]["accepted (clamped)" if accepted else "rejected"] += 1
@@ -153,7 +154,7 @@ def test_cmd_vel_is_rejected_if_not_finite_else_clamped(controller, fuzz_cases, 
 @example(f=2.0, p=0.5, offsets=[0.0, math.pi, TWO_PI, 0.0])  # 2 pi is outside [0, 2 pi)
 @example(f=4.0000001, p=0.5, offsets=[0.0, 0.0, 0.0, 0.0])
 def test_gait_params_are_accepted_only_inside_the_paper_ranges(controller, fuzz_cases, f, p, offsets):
-    sup = ControllerSupervisor(controller)
+    sup = ControllerSupervisor(controller, GAITS)
     params = GaitParams(f, p, tuple(offsets))
     try:
         params.validated()
@@ -188,7 +189,7 @@ def hostile_obs():
 @example(steps=[({"joint_position": [0.0] * 5}, False)], mode="stand")
 def test_no_observation_makes_the_supervisor_command_nan(controller, fuzz_cases, steps, mode):
     """Stood-up robot, then steps with hostile observations: every command is safe; unusable ones damp."""
-    sup = ControllerSupervisor(controller, SupervisorConfig(mode=mode, stand_time=0.0))
+    sup = ControllerSupervisor(controller, GAITS, SupervisorConfig(mode=mode, stand_time=0.0))
     t = 0.0
     assert_safe(sup.step(t, standing_obs(), velocity_fresh=True).command)
     invalid = 0
@@ -221,7 +222,7 @@ def unusable(changes: dict) -> bool:
 
 @given(time=hostile_float)
 def test_a_non_finite_clock_damps_instead_of_computing(controller, time):
-    sup = ControllerSupervisor(controller, SupervisorConfig(stand_time=0.0))
+    sup = ControllerSupervisor(controller, GAITS, SupervisorConfig(stand_time=0.0))
     result = sup.step(time, standing_obs(), velocity_fresh=True)
     assert_safe(result.command)
     assert (result.state == "invalid_input") == (not math.isfinite(time))
@@ -237,7 +238,8 @@ class _NanController(LocomotionController):
 
 
 def test_a_nan_controller_output_is_replaced_by_damping_then_the_robot_stands_again():
-    sup = ControllerSupervisor(_NanController(GAITS["slow_trot"]), SupervisorConfig(stand_time=0.0))
+    sup = ControllerSupervisor(_NanController(GAITS["slow_trot"], load_controller_config()), GAITS,
+                          SupervisorConfig(stand_time=0.0))
     states = []
     for k in range(4):
         result = sup.step(k * DT, standing_obs(), velocity_fresh=True)
@@ -253,36 +255,35 @@ def test_a_nan_controller_output_is_replaced_by_damping_then_the_robot_stands_ag
 
 # --- the estimator's sensor samples ---------------------------------------------------------------------
 def _sample(time: float, **changes):
-    from state_estimator_node.estimator import SensorSample
-
     fields = dict(time=time, joint_position=ROBOT.nominal_joint_angles.copy(), joint_velocity=np.zeros(12),
-                  orientation=np.array([0.0, 0.0, 0.0, 1.0]), angular_velocity=np.zeros(3),
-                  linear_acceleration=np.array([0.0, 0.0, 9.81]), foot_contact=np.ones(4, bool),
-                  foot_force=np.full(4, 30.0))
+                  joint_torque=np.zeros(12), imu_orientation=np.array([0.0, 0.0, 0.0, 1.0]),
+                  imu_angular_velocity=np.zeros(3), imu_linear_acceleration=np.array([0.0, 0.0, 9.81]),
+                  foot_contact=np.ones(4, bool), foot_force=np.full(4, 30.0))
     fields.update({k: np.asarray(v) for k, v in changes.items()})
-    return SensorSample(**fields)
+    return SensorReadings(**fields)
 
 
 @given(changes=st.fixed_dictionaries({}, optional={
     "joint_position": arrays(st.sampled_from([12, 12, 3])), "joint_velocity": arrays(st.sampled_from([12, 12, 0])),
-    "orientation": arrays(st.sampled_from([4, 4, 4, 3])), "angular_velocity": arrays(st.sampled_from([3, 3, 2])),
-    "linear_acceleration": arrays(st.sampled_from([3, 3, 4])), "foot_force": arrays(st.sampled_from([4, 4, 1]))}))
-@example(changes={"orientation": [0.0, 0.0, 0.0, 0.0]})
+    "imu_orientation": arrays(st.sampled_from([4, 4, 4, 3])),
+    "imu_angular_velocity": arrays(st.sampled_from([3, 3, 2])),
+    "imu_linear_acceleration": arrays(st.sampled_from([3, 3, 4])), "foot_force": arrays(st.sampled_from([4, 4, 1]))}))
+@example(changes={"imu_orientation": [0.0, 0.0, 0.0, 0.0]})
 def test_estimator_rejects_unusable_samples_and_stays_finite(fuzz_cases, changes):
     """NaN/inf, wrong sizes and zero quaternions: rejected and counted; the estimate stays finite."""
     from state_estimator_node import estimator as module
 
-    est = module.VelocityEstimator()
+    est = module.VelocityEstimator(module.load_estimator_config())
     est.update(_sample(0.0))
     rejected = est.rejected_samples
     reference = _sample(0.0)
     limits = {"joint_position": module.MAX_JOINT_ANGLE, "joint_velocity": module.MAX_JOINT_SPEED,
-              "angular_velocity": module.MAX_GYRO, "linear_acceleration": module.MAX_ACCELERATION,
+              "imu_angular_velocity": module.MAX_GYRO, "imu_linear_acceleration": module.MAX_ACCELERATION,
               "foot_force": module.MAX_FOOT_FORCE}
     with np.errstate(all="ignore"):
         unusable = {k: v for k, v in changes.items()  # wrong size, NaN/inf, not a unit quaternion, beyond a sensor
                     if len(v) != len(getattr(reference, k)) or not np.all(np.isfinite(v))
-                    or (k == "orientation" and not 0.5 < np.linalg.norm(v) < 2.0)
+                    or (k == "imu_orientation" and not 0.5 < np.linalg.norm(v) < 2.0)
                     or (k in limits and np.max(np.abs(v)) >= limits[k])}
     after = est.update(_sample(DT, **unusable))
     fuzz_cases["sensor sample -> estimator"]["rejected" if est.rejected_samples > rejected else "accepted"] += 1
@@ -294,10 +295,10 @@ def test_estimator_rejects_unusable_samples_and_stays_finite(fuzz_cases, changes
 @given(orientation=arrays(st.just(4), st.floats(-1e300, 1e300)))
 @example(orientation=[1e200, 1e200, 0.0, 0.0])
 def test_estimator_output_stays_finite_for_any_finite_quaternion(orientation):
-    from state_estimator_node.estimator import VelocityEstimator
+    from state_estimator_node.estimator import VelocityEstimator, load_estimator_config
 
-    est = VelocityEstimator()
+    est = VelocityEstimator(load_estimator_config())
     est.update(_sample(0.0))
     with np.errstate(all="ignore"):
-        out = est.update(_sample(DT, orientation=orientation))
+        out = est.update(_sample(DT, imu_orientation=orientation))
     assert np.all(np.isfinite(out.velocity_body))

@@ -291,15 +291,17 @@ def test_virtual_a1_realtime_streams_states_at_500_hz_then_damps(shared_sim_conf
         assert link.receive(0.1) is None  # no state before the robot heard from a client
         assert link.send(command_packet(JointCommand.hold(ROBOT)))
         ticks, modes = [], []
-        deadline = time.monotonic() + 0.6
-        while time.monotonic() < deadline:  # one command only: the robot streams on its own
+        # 200 states are 0.4 s of the robot's clock, past its 0.1 s command-loss timeout; the wall
+        # time they take is the machine's (the rate is benchmarks/graph_realtime.py's to measure).
+        deadline = time.monotonic() + 10.0
+        while len(ticks) < 200 and time.monotonic() < deadline:  # one command only: the robot streams on its own
             for datagram in link._drain():
                 s = unpack_low_state(datagram)
                 ticks.append(s.tick)
                 modes.append(int(s.mode[0]))
             time.sleep(0.005)
         steps = np.diff(ticks)
-        assert len(ticks) > 150, f"only {len(ticks)} states in 0.6 s"
+        assert len(ticks) >= 200, f"only {len(ticks)} states in 10 s"
         assert np.all(steps == 2000), "states skipped or repeated"
         assert modes[0] == wire.SERVO_MODE and modes[-1] == wire.IDLE_MODE  # damped after 100 ms without commands
         assert robot.counters.command_loss_fallbacks == 1

@@ -9,7 +9,7 @@ import pytest
 from a1_common.command import MotorMode
 from a1_common.config import ConfigError
 from a1_common.robot import a1
-from convex_mpc_node.controller import LocomotionController, Observation
+from convex_mpc_node.controller import LocomotionController, Observation, load_controller_config
 from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
 from convex_mpc_node.supervisor import ControllerSupervisor, SupervisorConfig
 
@@ -24,7 +24,8 @@ def standing_obs(q=None) -> Observation:
 
 
 def make(**config) -> ControllerSupervisor:
-    return ControllerSupervisor(LocomotionController(GAITS["slow_trot"]), SupervisorConfig(**config))
+    controller = LocomotionController(GAITS["slow_trot"], load_controller_config())
+    return ControllerSupervisor(controller, GAITS, SupervisorConfig(**config))
 
 
 def run(sup: ControllerSupervisor, start: float, seconds: float, fresh: bool = True, obs=None, backup=False):

@@ -166,10 +166,9 @@ class LocomotionController:
     stance legs' torques from the convex MPC, SwingController (swing.py) the swing legs' joint
     targets; this class reads the state once per step in the frames they use and composes them."""
 
-    def __init__(self, gait: GaitParams, config: ControllerConfig | None = None,
-                 robot: A1Constants | None = None) -> None:
+    def __init__(self, gait: GaitParams, config: ControllerConfig, robot: A1Constants | None = None) -> None:
         self.robot = robot or a1()
-        self.config = (config or load_controller_config()).validated()
+        self.config = config.validated()
         cfg = self.config
         self.gait = PhaseIntegrator(gait)
         self.stance = StanceController(cfg.mpc, cfg.mpc_period_steps, cfg.mpc_async)

@@ -111,7 +111,7 @@ class ConvexMpcNode(Node):
             self.odom_every = require_integer("odom_every_steps", params["odom_every_steps"], 1, 500)
             gaits = load_hand_tuned_gaits()
             self.controller = LocomotionController(gaits["slow_trot"], controller_config)
-            self.supervisor = ControllerSupervisor(self.controller, supervisor_config)
+            self.supervisor = ControllerSupervisor(self.controller, gaits, supervisor_config)
             self._inject_qp_failures(params["inject_qp_failures"])
         self.mass = float(params["mass_for_cot"])
         self.period = controller_config.control_period

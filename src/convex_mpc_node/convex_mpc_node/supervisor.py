@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,7 +41,7 @@ from a1_common.config import ConfigError, require_choice, require_range, setting
 from a1_common.robot import NUM_JOINTS, NUM_LEGS
 
 from convex_mpc_node.controller import LocomotionController, Observation
-from convex_mpc_node.gait import GaitParams, gait_for_speed, load_hand_tuned_gaits
+from convex_mpc_node.gait import GaitParams, gait_for_speed
 
 STOOD_UP_JOINT_ERROR = 0.2  # [rad] largest joint error from the nominal pose to start walking
 STOOD_UP_TILT = np.radians(10.0)  # [rad] largest body tilt to start walking
@@ -98,11 +99,13 @@ class StepResult:
 
 
 class ControllerSupervisor:
-    def __init__(self, controller: LocomotionController, config: SupervisorConfig | None = None) -> None:
+    def __init__(self, controller: LocomotionController, gaits: Mapping[str, GaitParams],
+                 config: SupervisorConfig | None = None) -> None:
+        """``gaits``: the hand-tuned gaits by name (config/gaits.yaml) taken by speed after gait_timeout."""
         self.controller = controller
         self.config = (config or SupervisorConfig()).validated()
         self.requested = Mode(self.config.mode)
-        self.gaits = load_hand_tuned_gaits()
+        self.gaits = dict(gaits)
         self.estopped = False
         self.fallen = False  # latched like the e-stop (see the module docstring)
         self.falls = 0

@@ -17,12 +17,11 @@ import numpy as np
 from a1_common.command import JointCommand, VelocityCommand
 from a1_common.kinematics import heading_frame, quat_to_matrix
 from a1_common.robot import FALL_HEIGHT
-from a1_interface.sensors import SensorReadings
 from a1_sim_bridge.sim import A1Sim, SimConfig
-from convex_mpc_node.controller import ControllerConfig, LocomotionController, Observation
+from convex_mpc_node.controller import ControllerConfig, LocomotionController, Observation, load_controller_config
 from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import GaitParams
-from state_estimator_node.estimator import EstimatorConfig, SensorSample, VelocityEstimator
+from state_estimator_node.estimator import EstimatorConfig, VelocityEstimator, load_estimator_config
 
 from gait_policy_node.speed_profiles import SpeedProfile
 from gait_policy_node.train_config import VELOCITY_SOURCES
@@ -69,12 +68,6 @@ class Trajectory:
         return np.mean(np.asarray(self.velocity)[sel], axis=0)
 
 
-def sample_from_readings(r: SensorReadings) -> SensorSample:
-    """The estimator's input from the simulator's sensor readings (same fields, same units)."""
-    return SensorSample(r.time, r.joint_position, r.joint_velocity, r.imu_orientation, r.imu_angular_velocity,
-                        r.imu_linear_acceleration, r.foot_contact, r.foot_force)
-
-
 def tilted_or_low(position: np.ndarray, orientation: np.ndarray) -> bool:
     x, y = orientation[0], orientation[1]
     up_z = 1 - 2 * (x * x + y * y)  # world z of the body z axis
@@ -97,8 +90,9 @@ class ClosedLoop:
         if velocity_source not in VELOCITY_SOURCES:
             raise ValueError(f"velocity_source must be one of {VELOCITY_SOURCES}, got {velocity_source!r}")
         self.sim = sim if sim is not None else A1Sim(sim_config or SimConfig())
-        self.controller = LocomotionController(gait, controller_config)
-        self.estimator = VelocityEstimator(estimator_config)
+        # The offline tools' assembly point: config/'s files unless a config is given, as a node's parameters would be.
+        self.controller = LocomotionController(gait, controller_config or load_controller_config())
+        self.estimator = VelocityEstimator(estimator_config or load_estimator_config())
         self.use_estimate = velocity_source == "estimator"
         self.readings = self.sim.sensors()
         self.truth = self.sim.ground_truth()
@@ -118,7 +112,7 @@ class ClosedLoop:
         """The estimator's update and the controller's joint command for the current readings
         (``elapsed``: sim time since the last control step, when steps were missed)."""
         r = self.readings
-        estimate = self.estimator.update(sample_from_readings(r))
+        estimate = self.estimator.update(r)
         self._estimated_at = time.perf_counter()
         self.estimated_velocity = estimate.velocity_world
         velocity = estimate.velocity_world if self.use_estimate else self.truth.base_linear_velocity

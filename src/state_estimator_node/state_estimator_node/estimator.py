@@ -24,6 +24,7 @@ import numpy as np
 from a1_common.config import ConfigError, config_dir, load_node_parameters, require_range, setting
 from a1_common.kinematics import leg_kinematics, quat_to_matrix
 from a1_common.robot import NUM_JOINTS, NUM_LEGS, A1Constants, a1
+from a1_interface.sensors import SensorReadings
 from filterpy.kalman import KalmanFilter
 
 # Readings beyond these are sensor faults, not motion (the A1's joints turn < 30 rad/s, its IMU
@@ -90,20 +91,6 @@ def load_estimator_config(path=None) -> EstimatorConfig:
 
 
 @dataclass
-class SensorSample:
-    """One set of robot sensor readings (what a real A1 reports)."""
-
-    time: float  # [s]
-    joint_position: np.ndarray  # (12,) [rad]
-    joint_velocity: np.ndarray  # (12,) [rad/s]
-    orientation: np.ndarray  # (4,) base orientation (x, y, z, w)
-    angular_velocity: np.ndarray  # (3,) base frame [rad/s]
-    linear_acceleration: np.ndarray  # (3,) specific force, base frame [m/s^2]
-    foot_contact: np.ndarray  # (4,) bool
-    foot_force: np.ndarray  # (4,) [N]
-
-
-@dataclass
 class Estimate:
     time: float  # [s]
     velocity_world: np.ndarray  # (3,) [m/s]
@@ -140,8 +127,8 @@ _CROSS_EZ = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
 class VelocityEstimator:
     """Feed ``update`` every sensor sample (500 Hz); read the returned Estimate."""
 
-    def __init__(self, config: EstimatorConfig | None = None, robot: A1Constants | None = None) -> None:
-        self.config = (config or load_estimator_config()).validated()
+    def __init__(self, config: EstimatorConfig, robot: A1Constants | None = None) -> None:
+        self.config = config.validated()
         self.robot = robot or a1()
         self.rejected_samples = 0
         cfg = self.config
@@ -166,20 +153,21 @@ class VelocityEstimator:
         self._height: float | None = None
         self._feet_used = 0
 
-    def update(self, sample: SensorSample) -> Estimate:
-        """Predict with the IMU, correct with the stance legs; bad samples are rejected and counted."""
+    def update(self, sample: SensorReadings) -> Estimate:
+        """Predict with the IMU, correct with the stance legs; bad samples are rejected and counted.
+        ``sample.joint_torque`` is not read (a JointState without efforts is fine)."""
         if not self._valid(sample):
             self.rejected_samples += 1
             return self.estimate(sample.time if np.isfinite(sample.time) else (self._last_time or 0.0))
         cfg = self.config
         kf = self._kf
-        quaternion = np.asarray(sample.orientation, dtype=float)
+        quaternion = np.asarray(sample.imu_orientation, dtype=float)
         rot = quat_to_matrix(quaternion / math.sqrt(quaternion @ quaternion))
         dt = 0.0 if self._last_time is None else sample.time - self._last_time
         if dt < 0:  # time went backwards: the source restarted
             self.reset()
             dt = 0.0
-        accel_world = rot @ np.asarray(sample.linear_acceleration, dtype=float) - self._gravity  # [m/s^2]
+        accel_world = rot @ np.asarray(sample.imu_linear_acceleration, dtype=float) - self._gravity  # [m/s^2]
         u = accel_world * dt if dt <= cfg.max_gap else np.zeros(3)  # no extrapolation over gaps
         kf.predict(u=u, Q=self._process_noise * dt)
         self._last_time = sample.time
@@ -190,7 +178,7 @@ class VelocityEstimator:
         self._was_contact = contact
         q = np.asarray(sample.joint_position, dtype=float)
         dq = np.asarray(sample.joint_velocity, dtype=float)
-        omega = np.asarray(sample.angular_velocity, dtype=float)
+        omega = np.asarray(sample.imu_angular_velocity, dtype=float)
         feet, jac = leg_kinematics(self.robot, q)
         legs = np.flatnonzero(contact)
         used = len(legs)
@@ -237,12 +225,12 @@ class VelocityEstimator:
                         height=self._height, stale=stale, diverging=diverging, feet_used=self._feet_used)
 
     @staticmethod
-    def _valid(sample: SensorSample) -> bool:
+    def _valid(sample: SensorReadings) -> bool:
         """Right sizes, finite, and physically possible readings only: a unit quaternion (loosely)
         and magnitudes far beyond the A1's (so the filter's arithmetic cannot overflow into NaN).
         One comparison over all numbers: at 500 Hz the per-array checks cost more than the filter."""
-        arrays = (sample.joint_position, sample.joint_velocity, sample.angular_velocity,
-                  sample.linear_acceleration, sample.foot_force, sample.orientation)
+        arrays = (sample.joint_position, sample.joint_velocity, sample.imu_angular_velocity,
+                  sample.imu_linear_acceleration, sample.foot_force, sample.imu_orientation)
         if (tuple(np.shape(a) for a in arrays) != _SAMPLE_SHAPES or np.shape(sample.foot_contact) != (NUM_LEGS,)
                 or not np.isfinite(sample.time)):
             return False

@@ -8,11 +8,12 @@ from __future__ import annotations
 import numpy as np
 from a1_interface.contract import BASE_FRAME, ODOM_FRAME
 from a1_interface.conversions import ns_from_stamp
+from a1_interface.sensors import SensorReadings
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState
 
 from gait_msgs.msg import FootContacts
-from state_estimator_node.estimator import Estimate, EstimatorConfig, SensorSample, VelocityEstimator
+from state_estimator_node.estimator import Estimate, EstimatorConfig, VelocityEstimator
 
 # IMU / contact readings older than this relative to the joint state are not used [s].
 MAX_SENSOR_SKEW = 0.01
@@ -45,10 +46,11 @@ class OdometryFrontend:
             self.estimator.rejected_samples += 1
             return None
         o, w, a = imu.orientation, imu.angular_velocity, imu.linear_acceleration
-        sample = SensorSample(
+        sample = SensorReadings(
             time=now_ns * 1e-9, joint_position=np.asarray(joints.position, dtype=float),
-            joint_velocity=np.asarray(joints.velocity, dtype=float), orientation=np.array([o.x, o.y, o.z, o.w]),
-            angular_velocity=np.array([w.x, w.y, w.z]), linear_acceleration=np.array([a.x, a.y, a.z]),
+            joint_velocity=np.asarray(joints.velocity, dtype=float),
+            joint_torque=np.asarray(joints.effort, dtype=float), imu_orientation=np.array([o.x, o.y, o.z, o.w]),
+            imu_angular_velocity=np.array([w.x, w.y, w.z]), imu_linear_acceleration=np.array([a.x, a.y, a.z]),
             foot_contact=np.asarray(contacts.contact, dtype=bool),
             foot_force=np.asarray(contacts.normal_force, dtype=float))
         rejected_before = self.estimator.rejected_samples
