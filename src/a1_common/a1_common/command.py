@@ -199,6 +199,11 @@ class CommandWatchdog:
     def in_fallback(self) -> bool:
         return self._in_fallback
 
+    @property
+    def received_at(self) -> float:
+        """When the command in force was accepted [s, the motors' clock]; -inf if there is none."""
+        return self._received_at
+
 
 class DeadlineMonitor:
     """What the robot sees of its controller, counted by a bridge once per control period (the sim

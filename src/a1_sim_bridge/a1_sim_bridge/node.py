@@ -13,7 +13,9 @@ QoS of the 500 Hz topics: RELIABLE, KEEP_LAST 1, VOLATILE (see docs/architecture
 /diagnostics (1 Hz) counts what the robot sees of its controller: ``uncommanded_steps``, steps
 applied with no command accepted since the step before (a missed 2 ms deadline); ``latency_*_ms``,
 wall time from publishing a step's sensors to receiving the first command stamped for it, over the
-last second, answers within 0.1 s only; ``lowest_base_height_m`` since the last report.
+last second, answers within 0.1 s only; ``lowest_base_height_m`` since the last report;
+``last_command_received_s``, the sim time the command in force was accepted at (its watchdog's
+reference: damping from ``command_timeout`` after it).
 """
 
 from __future__ import annotations
@@ -419,6 +421,7 @@ class SimBridgeNode(Node):
             "steps": self.sim.steps, "publish_rate_hz": f"{self._achieved_rate:.1f}",
             "commands_accepted": wd.accepted, "commands_rejected": wd.rejected,
             "last_rejection": wd.last_error, "damping_fallbacks": wd.timeouts,
+            "last_command_received_s": f"{wd.received_at:.3f}" if math.isfinite(wd.received_at) else "none",
             "late_commands": self._late_commands, "lockstep_timeouts": self._lockstep_timeouts,
             "realtime_overruns": self._overruns, "paused": self._paused,
             "uncommanded_steps": self.deadlines.uncommanded, **window,
