@@ -97,3 +97,33 @@ def test_swept_timing_sets_f_and_p_swing_from_the_sweeps_best_rows(two_policies,
     assert "--timing: no row named lag-45" in capsys.readouterr().err
     assert main([str(a), "--timing", str(slow)]) == 2
     assert "give --lags too" in capsys.readouterr().err
+
+
+def test_fit_policy_acts_as_the_lag_variant_away_from_the_switch_and_loads_as_a_policy(two_policies, tmp_path, capsys):
+    from gait_policy_node.fit_policy import main as fit_main
+
+    _, (a, _) = two_policies
+    out = tmp_path / "walking.npz"
+    assert fit_main([str(a), "--lag", "-30", "--below", "1.0", "--out", str(out), "--samples", "4000"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    fitted, target = load_policy(out)[0], with_low_speed_lag(load_policy(a)[0], -30.0, below=1.0)
+    slow = np.array([0.4, 0.45, 0.0, 0.0])
+    got, want = fitted(slow), target(slow)
+    assert np.allclose(np.cos(np.subtract(got.phase_offsets, want.phase_offsets)), 1.0, atol=1 - np.cos(np.radians(10)))
+    fast = np.array([1.8, 1.75, 0.0, 0.0])
+    assert fitted(fast).stepping_frequency == pytest.approx(target(fast).stepping_frequency, abs=0.3)
+    assert all(np.isfinite(v) for v in report.values() if isinstance(v, float))
+    assert fit_main([str(a), "--lag", "-30", "--out", str(tmp_path / "x.txt")]) == 2
+    assert "--out must end in .npz" in capsys.readouterr().err
+
+
+def test_encode_action_is_decode_actions_inverse():
+    from gait_policy_node.learned_policy import decode_action, encode_action
+    from gait_policy_node.train_config import ActionConfig
+
+    cfg = ActionConfig()
+    like = np.array([0.1, 0.2, -0.3, 0.1, 0.4, 0.2, -0.5, 0.3])
+    gait = GaitParams(1.7, 0.3, lag_family_offsets(-30.0))
+    back = decode_action(encode_action(gait, cfg, like), cfg)
+    assert back.stepping_frequency == pytest.approx(1.7) and back.swing_ratio == pytest.approx(0.3)
+    assert np.allclose(np.cos(np.subtract(back.phase_offsets, gait.phase_offsets)), 1.0)

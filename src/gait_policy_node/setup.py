@@ -24,6 +24,7 @@ setup(
             "eval_policy = gait_policy_node.eval_policy:main",
             "sweep_gaits = gait_policy_node.sweep_gaits:main",
             "compare_policies = gait_policy_node.compare_policies:main",
+            "fit_policy = gait_policy_node.fit_policy:main",
         ]
     },
 )

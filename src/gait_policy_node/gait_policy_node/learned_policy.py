@@ -53,6 +53,26 @@ def decode_action(a: np.ndarray, cfg: ActionConfig) -> GaitParams:
     return GaitParams(float(f), float(p), (0.0, *(float(t) for t in theta)))
 
 
+def encode_action(gait: GaitParams, cfg: ActionConfig, like: np.ndarray) -> np.ndarray:
+    """Network outputs that ``decode_action`` turns into ``gait`` (f and p_swing clipped into their
+    ranges). The offsets' (sin, cos) pairs keep the lengths they have in ``like`` (outputs of the
+    network the result is meant for), so that only their angles change."""
+    like = np.asarray(like, dtype=float)
+    f_lo, f_hi = cfg.frequency_range
+    p_lo, p_hi = cfg.swing_ratio_range
+    a = np.empty(ACTION_SIZE)
+    a[0] = 2.0 * (gait.stepping_frequency - f_lo) / (f_hi - f_lo) - 1.0
+    a[7] = 2.0 * (gait.swing_ratio - p_lo) / (p_hi - p_lo) - 1.0
+    prior = np.asarray(cfg.offset_prior, dtype=float)
+    b = cfg.offset_prior_weight
+    sin_prior, cos_prior = b * np.sin(prior), b * np.cos(prior)
+    radius = np.hypot(sin_prior + like[1:4], cos_prior + like[4:7])
+    theta = np.asarray(gait.phase_offsets[1:], dtype=float)
+    a[1:4] = radius * np.sin(theta) - sin_prior
+    a[4:7] = radius * np.cos(theta) - cos_prior
+    return np.clip(a, -1.0, 1.0)
+
+
 def default_normalisation(observation: str) -> tuple[np.ndarray, np.ndarray]:
     """Observation mean and scale: velocities are O(1) m/s already; joint angles centre on the
     nominal pose (0, 0.9, -1.8) rad of each leg."""

@@ -1,0 +1,146 @@
+"""fit_policy: a policy network refitted to act as compare_policies' low-speed lag variant of it.
+
+    fit_policy POLICY --lag DEG [--below V] [--timing BEST.csv ...] --out NEW.npz [--samples N] [--seed S]
+
+Why: CMA-ES moves a policy in small steps from where it stands. To ask whether it keeps a gait it
+has not found itself (a four-beat walk at low speed), a run has to start from a policy that walks.
+This keeps POLICY's hidden layer and solves its output layer by least squares (on the tanh's
+inverse) so that the network acts like ``compare_policies --lags DEG --below V --timing ...``: below
+V commanded, the lag family's phase offsets (and the sweep's f and p_swing with ``--timing``);
+above, its own action. Observations are drawn around the diagonal the episodes visit (measured
+speed near the command). The result is an ordinary policy file with POLICY's training config:
+``compare_policies`` evaluates it, ``train_es --init-from NEW.npz`` starts a run there. Prints how
+closely the fit acts like its target, and ends with one JSON line of those figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+from a1_common.config import ConfigError
+from convex_mpc_node.gait import GaitParams
+
+from gait_policy_node.compare_policies import load_timing, with_low_speed_lag
+from gait_policy_node.learned_policy import ACTION_SIZE, NetworkPolicy, encode_action, load_policy, save_policy
+from gait_policy_node.sweep_gaits import lag_family_offsets
+
+RIDGE = 1e-4  # output-layer least squares regulariser (hidden features are O(1))
+MAX_TARGET = 0.98  # targets clipped into the tanh's range before its inverse
+
+
+def sample_observations(count: int, top_speed: float, seed: int) -> np.ndarray:
+    """``count`` basic observations [v_des_x, v_x, v_y, v_z] [m/s]: commands uniform in [0, top_speed],
+    measured speed within about 0.15 m/s of the command, small lateral and vertical speeds."""
+    rng = np.random.default_rng(seed)
+    v_des = rng.uniform(0.0, top_speed, count)
+    return np.column_stack([v_des, v_des + rng.normal(0.0, 0.15, count), rng.normal(0.0, 0.05, count),
+                            rng.normal(0.0, 0.05, count)])
+
+
+def fit_output_layer(policy: NetworkPolicy, observations: np.ndarray, targets: np.ndarray) -> NetworkPolicy:
+    """A copy of ``policy`` (mlp) whose output layer maps its hidden features of ``observations`` to
+    ``targets`` (network outputs in (-1, 1), one row per observation) in the least-squares sense."""
+    if policy.kind != "mlp":
+        raise ConfigError(f"fit_policy refits an mlp policy's output layer; this one is {policy.kind}")
+    (w1, b1), _ = policy._layers
+    hidden = np.tanh((observations - policy.obs_mean) / policy.obs_std @ w1.T + b1)
+    features = np.column_stack([hidden, np.ones(len(hidden))])
+    z = np.arctanh(np.clip(targets, -MAX_TARGET, MAX_TARGET))
+    gram = features.T @ features + RIDGE * len(features) * np.eye(features.shape[1])
+    solution = np.linalg.solve(gram, features.T @ z)  # (hidden + 1) x 8
+    h = policy.hidden_units
+    params = policy.params.copy()
+    start = h * policy.obs_size + h
+    params[start:start + ACTION_SIZE * h] = solution[:h].T.reshape(-1)
+    params[start + ACTION_SIZE * h:] = solution[h]
+    return NetworkPolicy(policy.kind, policy.observation, h, policy.action, params, policy.obs_mean, policy.obs_std)
+
+
+def lag_targets(policy: NetworkPolicy, observations: np.ndarray, lag_deg: float, below: float,
+                timing=None) -> np.ndarray:
+    """Network outputs that decode to the lag variant's gait for each observation (its own above ``below``)."""
+    variant = with_low_speed_lag(policy, lag_deg, below, timing)
+    rows = []
+    for obs in observations:
+        own = policy.raw_action(obs)
+        rows.append(own if abs(obs[0]) >= below else encode_action(variant(obs), policy.action, own))
+    return np.array(rows)
+
+
+def _offset_error_deg(a: GaitParams, b: GaitParams) -> float:
+    diff = np.angle(np.exp(1j * (np.array(a.phase_offsets) - np.array(b.phase_offsets))))
+    return float(np.degrees(np.max(np.abs(diff))))
+
+
+def fit_report(fitted: NetworkPolicy, target, observations: np.ndarray, below: float) -> dict[str, float]:
+    """Worst differences of the fitted policy's gait from the target's, away from the switch speed
+    (within 0.15 m/s of ``below`` the fit blends the two by construction)."""
+    rows = {"below": [], "above": []}
+    for obs in observations:
+        if abs(abs(obs[0]) - below) < 0.15:
+            continue
+        got, want = fitted(obs), target(obs)
+        rows["below" if abs(obs[0]) < below else "above"].append(
+            (abs(got.stepping_frequency - want.stepping_frequency), abs(got.swing_ratio - want.swing_ratio),
+             _offset_error_deg(got, want)))
+    report = {}
+    for side, values in rows.items():
+        worst = np.max(values, axis=0) if values else np.zeros(3)
+        report.update({f"{side}_max_frequency_error_hz": float(worst[0]),
+                       f"{side}_max_swing_ratio_error": float(worst[1]),
+                       f"{side}_max_offset_error_deg": float(worst[2])})
+    return report
+
+
+def _parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="fit_policy", description=__doc__.split("\n")[0])
+    parser.add_argument("policy", metavar="POLICY", help="policy .npz (an mlp) or 'learned'")
+    parser.add_argument("--lag", type=float, required=True, help="diagonal lag [deg] below --below (lag family)")
+    parser.add_argument("--below", type=float, default=1.25, help="commanded speed [m/s] under which the lag applies")
+    parser.add_argument("--timing", nargs="+", default=[], metavar="BEST_CSV",
+                        help="sweep_gaits best.csv files: f and p_swing below --below from them")
+    parser.add_argument("--out", required=True, help="the new policy file (.npz)")
+    parser.add_argument("--samples", type=int, default=20000, help="observations fitted (default 20000)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the observation draw")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse_args(argv)
+    try:
+        lag_family_offsets(args.lag)  # ConfigError naming the range
+        if not 0.0 < args.below <= 5.0:
+            raise ConfigError(f"--below must be in (0, 5] m/s, got {args.below}")
+        if not 100 <= args.samples <= 1_000_000:
+            raise ConfigError(f"--samples must be in [100, 1000000], got {args.samples}")
+        if not args.out.endswith(".npz"):
+            raise ConfigError(f"--out must end in .npz, got {args.out}")
+        timing = load_timing(args.timing, args.lag) if args.timing else None
+        policy, config = load_policy(args.policy)
+        if config.env.observation != "basic":
+            raise ConfigError(f"fit_policy draws basic observations; this policy's is {config.env.observation}")
+        top = max(config.env.profile.target_speed, *(v for _, v in config.env.profile.steps)) + 0.3
+        observations = sample_observations(args.samples, top, args.seed)
+        fitted = fit_output_layer(policy, observations, lag_targets(policy, observations, args.lag, args.below, timing))
+        check = sample_observations(2000, top, args.seed + 1)
+        report = fit_report(fitted, with_low_speed_lag(policy, args.lag, args.below, timing), check, args.below)
+        save_policy(args.out, fitted, config)
+    except (ConfigError, OSError) as exc:
+        print(f"fit_policy: {exc}", file=sys.stderr)
+        return 2
+    print(f"fit_policy: wrote {args.out}: lag {args.lag:+g} deg below {args.below:g} m/s"
+          f"{' with the swept timing' if timing else ''}; worst differences from the target on 2000 other "
+          "observations (more than 0.15 m/s from the switch):")
+    for side in ("below", "above"):
+        print(f"  {side:5s}: f {report[f'{side}_max_frequency_error_hz']:.3f} Hz, "
+              f"p_swing {report[f'{side}_max_swing_ratio_error']:.3f}, "
+              f"offsets {report[f'{side}_max_offset_error_deg']:.1f} deg")
+    print(json.dumps({"out": args.out, "lag_deg": args.lag, "below_mps": args.below, **report}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
