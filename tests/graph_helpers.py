@@ -192,13 +192,15 @@ def damping_onset(joints: list[tuple[float, np.ndarray, np.ndarray]], after: flo
     return None
 
 
-def set_sim_paused(executor, node, paused: bool) -> None:
-    """Pause or resume the sim bridge (its ~/pause service), e.g. while a killed node restarts."""
+def set_sim_paused(executor, node, paused: bool) -> float:
+    """Pause or resume the sim bridge (its ~/pause service), e.g. while a killed node restarts;
+    returns the sim time it holds at or resumes from [s] (from the service's reply)."""
     client = node.create_client(SetBool, "/sim_bridge/pause")
     assert client.wait_for_service(timeout_sec=10.0)
     future = client.call_async(SetBool.Request(data=paused))
     assert spin_until(executor, future.done, 10.0) and future.result().success
     node.destroy_client(client)
+    return float(future.result().message.split()[-2])
 
 
 def free_udp_port() -> int:

@@ -118,6 +118,17 @@ class Probe(Node):
         return round(float(np.max(np.abs(mean[t_mean >= after] - SPEED))) / SPEED * 100, 1)
 
 
+def kill_with_sim_paused(executor, probe: Probe, graph: Graph, name: str) -> float:
+    """SIGKILL node ``name`` while the sim holds still, once the probe has read up to then; the sim
+    time of the kill [s]. Exact: the probe's own sim time lags the sim by what it has not read yet
+    (the kill takes wall time, and the probe does not spin meanwhile)."""
+    held_at = set_sim_paused(executor, probe, True)
+    assert spin_until(executor, lambda: probe.sim_time() >= held_at - 1e-9, 10.0), "the probe did not catch up"
+    graph.kill(name)
+    set_sim_paused(executor, probe, False)
+    return held_at
+
+
 @pytest.fixture
 def scenario(tmp_path, rclpy_context, fault_scenarios):
     """(make_graph(faults) -> Graph, probe factory, executor, report(row)); stops everything after."""
@@ -312,8 +323,7 @@ def test_estimator_killed_stops_then_safe_stance_then_recovers(scenario):
     graph, probe, executor = make()
     graph.start_stack("lockstep", 0.05)
     run_until(executor, probe, graph, FAULT_AT, wall_timeout=480)
-    graph.kill("state_estimator")
-    killed_at = probe.sim_time()
+    killed_at = kill_with_sim_paused(executor, probe, graph, "state_estimator")
     run_until(executor, probe, graph, killed_at + STOP_WITHIN + 0.3, wall_timeout=480)
     safe_from = max(t for t, _, _, hold in probe.commands if not hold) + 0.002
     held = [t for t, _, _, hold in probe.commands if t >= safe_from]
@@ -371,8 +381,7 @@ def test_policy_killed_keeps_last_gait_then_hand_tuned(scenario, clock):
     # the stand-up. Kill it only once its gait has been in effect for the 0.5 s the check looks back.
     assert spin_until(executor, lambda: (since := policy_since(probe)) is not None and probe.sim_time() >= since + 0.5,
                       60.0), f"the policy's gait (swing ratio 0.6) was not in effect 0.5 s by {probe.sim_time():.2f} s"
-    graph.kill("gait_policy")
-    killed_at = probe.sim_time()
+    killed_at = kill_with_sim_paused(executor, probe, graph, "gait_policy")
     run_until(executor, probe, graph, killed_at + 2.5)
     switched = [t for t, ratio in probe.swing_ratio if t > killed_at and ratio == pytest.approx(0.5)]
     kept = all(ratio == pytest.approx(0.6) for t, ratio in probe.swing_ratio if killed_at - 0.5 < t < killed_at + 0.4)

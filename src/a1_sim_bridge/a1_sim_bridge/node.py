@@ -207,8 +207,9 @@ class SimBridgeNode(Node):
         with self._lock:
             self._paused = bool(request.data)
             self._lock.notify_all()
+            now = self.sim.time  # no step happens while paused: the time the pause holds at [s]
         response.success = True
-        response.message = "paused" if request.data else "running"
+        response.message = f"paused at {now:.6f} s" if request.data else f"running from {now:.6f} s"
         return response
 
     def _on_set_parameters(self, params) -> SetParametersResult:
