@@ -347,3 +347,9 @@ def test_lag_family_runs_from_the_trot_to_both_walks_and_refuses_what_it_cannot_
         sweep(config, [], [0.5], [1.5], [], hold=3.0, workers=1, lags=[30])
     with pytest.raises(ConfigError, match=r"--lags must be in \[-180, 180\]"):
         lag_family_offsets(200)
+
+
+def test_config_train_es_yaml_holds_the_dataclasses_own_defaults():
+    """The training defaults live once, in train_config's dataclasses; config/train_es.yaml lists
+    them for editing and must not say otherwise (a second source that drifts)."""
+    assert load_train_config(None) == TrainConfig()

@@ -311,3 +311,31 @@ def test_ros2_param_describe_over_the_parameter_service(rclpy_context):
         client_node.destroy_node()
         node.shutdown()
         node.destroy_node()
+
+
+def test_each_base_parameter_file_holds_the_nodes_own_defaults(stack_nodes):
+    """config/<node>.yaml lists each node's parameters for --params-file and describes them; the
+    defaults themselves live once, in the config dataclasses (a1_common.config.setting). A value in a
+    base file that differs from the default the node declares is a second source: refused here. The
+    overlays (convex_mpc_realtime.yaml, a1_robot.yaml) are deployment choices, not defaults."""
+    from a1_bringup.graph import describe
+    from a1_common.config import config_dir, load_node_parameters
+
+    _, nodes = stack_nodes
+    by_name = {n.get_name(): n for n in nodes}
+    overridden = {"virtual_a1": {"port", "settle_time"}, "hw_bridge": {"robot_ip", "local_ip", "local_port"}}
+    base_files = {spec.name: spec.param_files[0]
+                  for clock, bridge in (("lockstep", "sim"), ("lockstep", "virtual"), ("realtime", "sim"))
+                  for spec in describe(clock, bridge, embedded_estimator=False)}
+    assert set(base_files) == {"sim_bridge", "virtual_a1", "hw_bridge", "state_estimator", "convex_mpc", "gait_policy"}
+    for node_name, file_name in base_files.items():
+        node = by_name[node_name]
+        values = load_node_parameters(config_dir() / file_name, node_name)
+        assert set(values) == set(_declared(node)) - {"use_sim_time", "start_type_description_service"}, file_name
+        for key, value in values.items():
+            if key in overridden.get(node_name, set()):
+                continue
+            declared = node.get_parameter(key).value
+            if isinstance(declared, (list, tuple)) or hasattr(declared, "tolist"):  # array parameters
+                declared = list(declared)
+            assert declared == value, f"{file_name}: {key} is {value!r}, the node's default {declared!r}"
