@@ -317,7 +317,7 @@ def test_each_base_parameter_file_holds_the_nodes_own_defaults(stack_nodes):
     """config/<node>.yaml lists each node's parameters for --params-file and describes them; the
     defaults themselves live once, in the config dataclasses (a1_common.config.setting). A value in a
     base file that differs from the default the node declares is a second source: refused here. The
-    overlays (convex_mpc_realtime.yaml, a1_robot.yaml) are deployment choices, not defaults."""
+    realtime overlay (convex_mpc_realtime.yaml) holds deployment choices, not defaults."""
     from a1_bringup.graph import describe
     from a1_common.config import config_dir, load_node_parameters
 
