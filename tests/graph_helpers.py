@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -200,7 +201,9 @@ def set_sim_paused(executor, node, paused: bool) -> float:
     future = client.call_async(SetBool.Request(data=paused))
     assert spin_until(executor, future.done, 10.0) and future.result().success
     node.destroy_client(client)
-    return float(future.result().message.split()[-2])
+    reply = re.fullmatch(r"(?:paused at|running from) (\S+) s", future.result().message)
+    assert reply, f"unexpected ~/pause reply: {future.result().message!r}"
+    return float(reply.group(1))
 
 
 def free_udp_port() -> int:

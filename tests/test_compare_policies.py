@@ -95,6 +95,9 @@ def test_swept_timing_sets_f_and_p_swing_from_the_sweeps_best_rows(two_policies,
     assert set(rows) == {str(a), f"{a} @ lag -30 swept timing below 1.25 m/s"}
     assert main([str(a), "--lags", "-45", "--timing", str(slow)]) == 2
     assert "--timing: no row named lag-45" in capsys.readouterr().err
+    fast.write_text(header + "lag-30,1,7.5,0.4,1,0,1,1,1,False\n")
+    assert main([str(a), "--lags", "-30", "--timing", str(fast)]) == 2
+    assert "row lag-30: stepping_frequency must be in (0.0, 4.0], got 7.5" in capsys.readouterr().err
     assert main([str(a), "--timing", str(slow)]) == 2
     assert "give --lags too" in capsys.readouterr().err
 
@@ -117,13 +120,19 @@ def test_fit_policy_acts_as_the_lag_variant_away_from_the_switch_and_loads_as_a_
     assert "--out must end in .npz" in capsys.readouterr().err
 
 
-def test_encode_action_is_decode_actions_inverse():
+@pytest.mark.parametrize("saturated", [False, True])
+def test_encode_action_is_decode_actions_inverse_within_its_limit(saturated):
     from gait_policy_node.learned_policy import decode_action, encode_action
     from gait_policy_node.train_config import ActionConfig
 
     cfg = ActionConfig()
-    like = np.array([0.1, 0.2, -0.3, 0.1, 0.4, 0.2, -0.5, 0.3])
-    gait = GaitParams(1.7, 0.3, lag_family_offsets(-30.0))
-    back = decode_action(encode_action(gait, cfg, like), cfg)
-    assert back.stepping_frequency == pytest.approx(1.7) and back.swing_ratio == pytest.approx(0.3)
-    assert np.allclose(np.cos(np.subtract(back.phase_offsets, gait.phase_offsets)), 1.0)
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        like = rng.choice([-0.999, 0.999], 8) if saturated else rng.uniform(-0.5, 0.5, 8)
+        gait = GaitParams(rng.uniform(0.6, 3.9), rng.uniform(0.1, 0.9), lag_family_offsets(rng.uniform(-180, 180)))
+        a = encode_action(gait, cfg, like, limit=0.98)
+        assert np.all(np.abs(a) <= 0.98)
+        back = decode_action(a, cfg)
+        assert back.stepping_frequency == pytest.approx(gait.stepping_frequency)
+        assert back.swing_ratio == pytest.approx(gait.swing_ratio)
+        assert np.allclose(np.cos(np.subtract(back.phase_offsets, gait.phase_offsets)), 1.0)

@@ -292,11 +292,11 @@ def test_controller_killed_at_1_5_mps_damps_within_50_ms(scenario, clock):
     graph.kill("convex_mpc")
     killed_at = probe.sim_time()
     run_until(executor, probe, graph, killed_at + 0.1)
-    # When the bridge accepted the last command, from its own report from after the timeout: the
-    # probe may not have the killed process's last commands (a reader it had not sent them to yet).
-    assert spin_until(executor, lambda: float(bridge().get("sim_time_s", 0)) >= killed_at + 0.08, 10.0), \
-        "no report from the bridge after the kill"
-    assert int(bridge()["damping_fallbacks"]) == damped_before + 1, "the bridge did not report one damping"
+    # When the bridge accepted the last command, from its own report once it has damped: the probe
+    # may not have the killed process's last commands (a reader it had not sent them to yet).
+    assert spin_until(executor, lambda: int(bridge().get("damping_fallbacks", 0)) > damped_before, 10.0), \
+        "the bridge reported no damping after the kill"
+    assert int(bridge()["damping_fallbacks"]) == damped_before + 1, "the bridge damped more than once"
     received = float(bridge()["last_command_received_s"])
     onset = damping_onset(probe.joints, received)
     report(_row("controller_killed", clock, "convex_mpc SIGKILL at 1.5 m/s", probe,

@@ -197,3 +197,10 @@ def test_supervisor_config_errors():
         SupervisorConfig(input_timeout=0.0).validated()
     with pytest.raises(ConfigError, match="fall_tilt"):
         SupervisorConfig(fall_tilt=2.0).validated()
+
+
+def test_hand_tuned_gaits_missing_from_the_speed_schedule_are_refused_at_construction():
+    controller = LocomotionController(GAITS["slow_trot"], load_controller_config())
+    partial = {k: v for k, v in GAITS.items() if k != "fly_trot"}
+    with pytest.raises(ConfigError, match=r"hand-tuned gaits \['fly_trot'\] missing"):
+        ControllerSupervisor(controller, partial)

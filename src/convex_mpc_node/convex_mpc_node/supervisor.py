@@ -41,7 +41,7 @@ from a1_common.config import ConfigError, require_choice, require_range, setting
 from a1_common.robot import NUM_JOINTS, NUM_LEGS
 
 from convex_mpc_node.controller import LocomotionController, Observation
-from convex_mpc_node.gait import GaitParams, gait_for_speed
+from convex_mpc_node.gait import SPEED_SCHEDULE, GaitParams, gait_for_speed
 
 STOOD_UP_JOINT_ERROR = 0.2  # [rad] largest joint error from the nominal pose to start walking
 STOOD_UP_TILT = np.radians(10.0)  # [rad] largest body tilt to start walking
@@ -105,6 +105,10 @@ class ControllerSupervisor:
         self.controller = controller
         self.config = (config or SupervisorConfig()).validated()
         self.requested = Mode(self.config.mode)
+        missing = sorted({name for _, name in SPEED_SCHEDULE} - set(gaits))
+        if missing:  # taken by speed after gait_timeout: a missing one would fail mid-run
+            raise ConfigError(f"hand-tuned gaits {missing} missing; the speed schedule needs "
+                              f"{[name for _, name in SPEED_SCHEDULE]}")
         self.gaits = dict(gaits)
         self.estopped = False
         self.fallen = False  # latched like the e-stop (see the module docstring)

@@ -28,7 +28,7 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
-from a1_common.config import ConfigError
+from a1_common.config import ConfigError, require_range
 from convex_mpc_node.gait import GaitParams
 
 from gait_policy_node.env import GaitEnv
@@ -52,9 +52,12 @@ def load_timing(paths: list[str], lag_deg: float) -> Timing:
             try:
                 for row in csv.DictReader(handle):
                     if row.get("name") == lag_name(lag_deg):
-                        by_speed[float(row["target_speed"])] = (float(row["frequency"]), float(row["swing_ratio"]))
-            except (KeyError, ValueError) as exc:
-                raise ConfigError(f"--timing: {path} is not a sweep_gaits best.csv ({exc!r})") from exc
+                        speed, f, p = float(row["target_speed"]), float(row["frequency"]), float(row["swing_ratio"])
+                        require_range("target_speed", speed, -5.0, 5.0)
+                        GaitParams(f, p, lag_family_offsets(lag_deg)).validated()  # f in (0, 4] Hz, p in (0, 1)
+                        by_speed[speed] = (f, p)
+            except (KeyError, ValueError) as exc:  # ConfigError is a ValueError: it names field and range
+                raise ConfigError(f"--timing: {path}, row {lag_name(lag_deg)}: {exc}") from exc
     if not by_speed:
         raise ConfigError(f"--timing: no row named {lag_name(lag_deg)} in {', '.join(paths)}")
     speeds = sorted(by_speed)

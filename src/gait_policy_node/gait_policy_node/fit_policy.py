@@ -25,7 +25,7 @@ from convex_mpc_node.gait import GaitParams
 
 from gait_policy_node.compare_policies import load_timing, with_low_speed_lag
 from gait_policy_node.learned_policy import ACTION_SIZE, NetworkPolicy, encode_action, load_policy, save_policy
-from gait_policy_node.sweep_gaits import lag_family_offsets
+from gait_policy_node.train_config import ProfileConfig
 
 RIDGE = 1e-4  # output-layer least squares regulariser (hidden features are O(1))
 MAX_TARGET = 0.98  # targets clipped into the tanh's range before its inverse
@@ -38,6 +38,13 @@ def sample_observations(count: int, top_speed: float, seed: int) -> np.ndarray:
     v_des = rng.uniform(0.0, top_speed, count)
     return np.column_stack([v_des, v_des + rng.normal(0.0, 0.15, count), rng.normal(0.0, 0.05, count),
                             rng.normal(0.0, 0.05, count)])
+
+
+def profile_top_speed(profile: ProfileConfig) -> float:
+    """The largest forward speed [m/s] the profile of this kind commands (its fields for other kinds are unused)."""
+    return abs(float({"ramp": profile.target_speed, "constant": profile.speed,
+                      "steps": max((abs(v) for _, v in profile.steps), default=0.0),
+                      "random": max(abs(v) for v in profile.random_range)}[profile.kind]))
 
 
 def fit_output_layer(policy: NetworkPolicy, observations: np.ndarray, targets: np.ndarray) -> NetworkPolicy:
@@ -66,7 +73,7 @@ def lag_targets(policy: NetworkPolicy, observations: np.ndarray, lag_deg: float,
     rows = []
     for obs in observations:
         own = policy.raw_action(obs)
-        rows.append(own if abs(obs[0]) >= below else encode_action(variant(obs), policy.action, own))
+        rows.append(own if abs(obs[0]) >= below else encode_action(variant(obs), policy.action, own, MAX_TARGET))
     return np.array(rows)
 
 
@@ -111,7 +118,10 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = _parse_args(argv)
     try:
-        lag_family_offsets(args.lag)  # ConfigError naming the range
+        if not -180.0 <= args.lag <= 180.0:
+            raise ConfigError(f"--lag must be in [-180, 180] deg, got {args.lag}")
+        if args.seed < 0:
+            raise ConfigError(f"--seed must be >= 0, got {args.seed}")
         if not 0.0 < args.below <= 5.0:
             raise ConfigError(f"--below must be in (0, 5] m/s, got {args.below}")
         if not 100 <= args.samples <= 1_000_000:
@@ -122,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
         policy, config = load_policy(args.policy)
         if config.env.observation != "basic":
             raise ConfigError(f"fit_policy draws basic observations; this policy's is {config.env.observation}")
-        top = max(config.env.profile.target_speed, *(v for _, v in config.env.profile.steps)) + 0.3
+        top = profile_top_speed(config.env.profile) + 0.3
         observations = sample_observations(args.samples, top, args.seed)
         fitted = fit_output_layer(policy, observations, lag_targets(policy, observations, args.lag, args.below, timing))
         check = sample_observations(2000, top, args.seed + 1)

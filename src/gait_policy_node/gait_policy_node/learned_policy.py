@@ -53,10 +53,12 @@ def decode_action(a: np.ndarray, cfg: ActionConfig) -> GaitParams:
     return GaitParams(float(f), float(p), (0.0, *(float(t) for t in theta)))
 
 
-def encode_action(gait: GaitParams, cfg: ActionConfig, like: np.ndarray) -> np.ndarray:
-    """Network outputs that ``decode_action`` turns into ``gait`` (f and p_swing clipped into their
-    ranges). The offsets' (sin, cos) pairs keep the lengths they have in ``like`` (outputs of the
-    network the result is meant for), so that only their angles change."""
+def encode_action(gait: GaitParams, cfg: ActionConfig, like: np.ndarray, limit: float = 1.0) -> np.ndarray:
+    """Network outputs within +-``limit`` that ``decode_action`` turns into ``gait`` (f and p_swing
+    clipped into their ranges). The offsets' (sin, cos) pairs keep the lengths they have in ``like``
+    (outputs of the network the result is meant for), so that mostly their angles change; a pair is
+    shortened where that length would put an output beyond ``limit`` (always possible: the prior's
+    weight is under 1), so the offsets decode exactly."""
     like = np.asarray(like, dtype=float)
     f_lo, f_hi = cfg.frequency_range
     p_lo, p_hi = cfg.swing_ratio_range
@@ -66,11 +68,17 @@ def encode_action(gait: GaitParams, cfg: ActionConfig, like: np.ndarray) -> np.n
     prior = np.asarray(cfg.offset_prior, dtype=float)
     b = cfg.offset_prior_weight
     sin_prior, cos_prior = b * np.sin(prior), b * np.cos(prior)
-    radius = np.hypot(sin_prior + like[1:4], cos_prior + like[4:7])
     theta = np.asarray(gait.phase_offsets[1:], dtype=float)
+    radius = np.maximum(np.hypot(sin_prior + like[1:4], cos_prior + like[4:7]), 0.1)
+    for component, offset in ((np.sin(theta), sin_prior), (np.cos(theta), cos_prior)):
+        # |radius * component - offset| <= limit; only the side the component points to can bind.
+        with np.errstate(divide="ignore"):
+            bound = np.where(component > 0, (offset + limit) / component,
+                             np.where(component < 0, (offset - limit) / component, np.inf))
+        radius = np.minimum(radius, bound)
     a[1:4] = radius * np.sin(theta) - sin_prior
     a[4:7] = radius * np.cos(theta) - cos_prior
-    return np.clip(a, -1.0, 1.0)
+    return np.clip(a, -limit, limit)
 
 
 def default_normalisation(observation: str) -> tuple[np.ndarray, np.ndarray]:
