@@ -27,7 +27,7 @@ def test_learned_names_the_shipped_file_from_the_committed_run():
     assert isinstance(make_policy(SHIPPED_POLICY), LearnedGait)
     # Trained by the run committed beside it (its config, an iteration it has reached), whatever
     # iteration that run has resumed to since.
-    run = REPO_ROOT / "training" / "cmaes-walk-init"  # the third stage (docs/learning.md has the lineage)
+    run = REPO_ROOT / "training" / "cmaes-staircase"
     assert config == load_train_config(run / "config.yaml")
     iterations = len(read_npz(run / "checkpoint.npz", "checkpoint")["return_history"])
     assert 0 < int(read_npz(SHIPPED_POLICY_FILE, "policy file")["iteration"]) <= iterations
