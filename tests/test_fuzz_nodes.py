@@ -368,20 +368,27 @@ class TestGaitPolicyNode:
 
 
     def test_gait_policy_node_clamps_the_desired_velocity(self, gait_policy, policy_file):
-        """The documented clamp: /cmd_vel x = 1e300 acts as 5 m/s (the largest the controller accepts)."""
+        """The documented clamp: /cmd_vel x = 1e300 acts as 5 m/s (the largest the controller accepts),
+        approached at the controller's acceleration, and the policy sees the shaped value."""
         graph, cmd_pub, odom_pub, out = gait_policy
         network, _ = load_policy(policy_file)
         twist = Twist()
         twist.linear.x = 1e300
         odom = _odometry([0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
-        expected = network(np.array([MAX_DESIRED_VELOCITY[0], 0.0, 0.0, 0.0]))
 
         def clamped() -> bool:
             cmd_pub.publish(twist)
             odom_pub.publish(odom)
-            return bool(out) and math.isclose(out[-1].stepping_frequency, expected.stepping_frequency, abs_tol=1e-12)
+            return (graph.node.shaper.target[0] == MAX_DESIRED_VELOCITY[0] and graph.node.desired[0] > 0.0
+                    and not np.any(graph.node.measured))
 
         assert graph.spin_until(clamped, timeout_s=5.0)
+        n = len(out)
+        assert graph.spin_until(lambda: len(out) > n, timeout_s=5.0)
+        desired = graph.node.desired  # the input of the last /gait/params (set and published in one callback)
+        assert 0.0 < desired[0] <= MAX_DESIRED_VELOCITY[0]
+        expected = network(np.concatenate([desired[:1], graph.node.measured]))
+        assert math.isclose(out[-1].stepping_frequency, expected.stepping_frequency, abs_tol=1e-12)
         np.testing.assert_allclose(out[-1].phase_offsets, expected.phase_offsets, atol=1e-12)
 
 

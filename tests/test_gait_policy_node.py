@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from a1_common.config import ConfigError
 from a1_interface.contract import COMMAND_QOS, CONTROL_QOS
+from convex_mpc_node.supervisor import load_supervisor_config
 from gait_policy_node.demo_report import DemoReportNode
 from gait_policy_node.learned_policy import NetworkPolicy, save_policy
 from gait_policy_node.policy_node import GaitPolicyNode
@@ -60,6 +61,43 @@ def test_learned_policy_file_drives_gait_params(rclpy_context, tmp_path):
         last = received[-1]
         assert last.swing_ratio == pytest.approx(expected.swing_ratio)
         np.testing.assert_allclose(last.phase_offsets, expected.phase_offsets, atol=1e-9)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        io.destroy_node()
+
+
+@pytest.mark.ros
+def test_the_policy_sees_a_cmd_vel_step_as_the_controller_tracks_it(rclpy_context):
+    """A step in /cmd_vel (0 -> 1.2 m/s, then back to 0) reaches the policy as the controller's
+    supervisor shapes it (config/convex_mpc.yaml's max_acceleration), never as a step: the
+    policy was trained on commands that change at most at 1 m/s^2."""
+    node = GaitPolicyNode(context=rclpy_context, parameter_overrides=[Parameter("policy", value="scheduled"),
+                                                                      Parameter("rate", value=100.0)])
+    io = Node("policy_io", context=rclpy_context)
+    cmd_pub = io.create_publisher(Twist, "/cmd_vel", COMMAND_QOS)
+    acceleration = load_supervisor_config().max_acceleration
+    seen: list[tuple[float, float]] = []  # (node clock [s], desired vx the policy saw [m/s])
+    io.create_subscription(GaitParamsMsg, "/gait/params", lambda m: seen.append(
+        (m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, float(node.desired[0]))), COMMAND_QOS)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    executor.add_node(io)
+
+    def step_to(speed: float) -> bool:
+        cmd = Twist()
+        cmd.linear.x = speed
+        cmd_pub.publish(cmd)
+        return bool(seen) and seen[-1][1] == speed
+
+    try:
+        assert spin_until(executor, lambda: step_to(1.2), timeout_s=20.0), seen[-3:]
+        assert spin_until(executor, lambda: step_to(0.0), timeout_s=20.0), seen[-3:]
+        times, desired = np.array(seen).T
+        assert desired.max() == pytest.approx(1.2) and 0.0 < np.median(desired) < 1.2  # ramps, both ways
+        rate = np.abs(np.diff(desired)) / np.maximum(np.diff(times), 1e-9)
+        # 1e-3: the stamps are doubles of about 1.8e9 s (epoch), good to about 0.2 us
+        assert rate.max() <= acceleration * (1 + 1e-3), f"desired speed changed at {rate.max():.3f} m/s^2"
     finally:
         executor.shutdown()
         node.destroy_node()

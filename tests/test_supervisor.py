@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from a1_common.command import MotorMode
+from a1_common.command import CommandShaper, MotorMode
 from a1_common.config import ConfigError
 from a1_common.robot import a1
 from convex_mpc_node.controller import LocomotionController, Observation, load_controller_config
@@ -204,3 +204,17 @@ def test_hand_tuned_gaits_missing_from_the_speed_schedule_are_refused_at_constru
     partial = {k: v for k, v in GAITS.items() if k != "fly_trot"}
     with pytest.raises(ConfigError, match=r"hand-tuned gaits \['fly_trot'\] missing"):
         ControllerSupervisor(controller, partial)
+
+
+def test_command_shaper_ramps_to_the_target_times_out_to_zero_and_stops_at_its_rate():
+    shaper = CommandShaper(acceleration=1.0, timeout=2.0)
+    shaper.set_target(np.array([1.5, 0.0, 0.0]), now=0.0)
+    speeds = [shaper.update(now=0.1 * k, dt=0.1)[0] for k in range(1, 21)]
+    assert speeds[0] == pytest.approx(0.1) and speeds[9] == pytest.approx(1.0) and speeds[-1] == 1.5
+    shaper.update(now=2.1, dt=0.1)  # /cmd_vel older than the timeout: the target is zero
+    assert shaper.command[0] == pytest.approx(1.4)
+    assert shaper.update(now=2.2, dt=0.1, stop_rate=2.0)[0] == pytest.approx(1.2)  # a controlled stop
+    shaper.hold()
+    assert not np.any(shaper.command)
+    with pytest.raises(ConfigError, match="acceleration"):
+        CommandShaper(acceleration=0.0, timeout=1.0)

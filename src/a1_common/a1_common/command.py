@@ -1,5 +1,6 @@
 """The commands passed down the stack, free of ROS: the body velocity command (what /cmd_vel
-carries to the controller) and the low-level joint command (the A1's hardware contract).
+carries to the controller; CommandShaper: the command as the controller tracks it) and the
+low-level joint command (the A1's hardware contract).
 
 The joint command mirrors ``gait_msgs/MotorCommand`` and what the A1's low-level interface accepts per motor:
 in HYBRID mode each joint applies ``tau = kp (q* - q) + kd (dq* - dq) + tau_ff`` [N m], clipped to
@@ -32,6 +33,49 @@ class VelocityCommand:
     vx: float = 0.0
     vy: float = 0.0
     yaw_rate: float = 0.0
+
+
+class CommandShaper:
+    """The velocity command a controller tracks, from the latest requested one (/cmd_vel): that
+    target, zero once it is older than ``timeout`` [s] (0: never), approached at ``acceleration``
+    [m/s^2, rad/s^2] per axis (vx, vy, yaw rate).
+
+    The controller's supervisor drives the robot with it; the gait policy node observes the same
+    shaped command, because the policy was trained on commands that change at most at the paper's
+    1 m/s^2: a step in /cmd_vel must not ask it for the gait of a speed the robot is not at yet.
+    """
+
+    def __init__(self, acceleration: float, timeout: float) -> None:
+        self.acceleration = require_range("acceleration", acceleration, 0.0, 20.0, low_open=True)
+        self.timeout = require_range("timeout", timeout, 0.0, 3600.0)
+        self.reset()
+
+    def reset(self) -> None:
+        """No target and a command at rest (a new run)."""
+        self.target = np.zeros(3)
+        self.command = np.zeros(3)
+        self.target_time = float("-inf")
+
+    def set_target(self, target: np.ndarray, now: float) -> None:
+        """The requested (vx, vy, yaw rate), received at ``now`` [s]."""
+        self.target = np.asarray(target, dtype=float)
+        self.target_time = now
+
+    def update(self, now: float, dt: float, stop_rate: float | None = None) -> np.ndarray:
+        """The command after ``dt`` [s] more toward the target, or toward zero at ``stop_rate``
+        (a controlled stop) when that is given."""
+        target = self.target
+        if stop_rate is not None or (self.timeout > 0 and now - self.target_time > self.timeout):
+            target = np.zeros(3)
+        step = (self.acceleration if stop_rate is None else stop_rate) * dt
+        # np.minimum/np.maximum: np.clip costs several times more on a 3-vector, every 2 ms.
+        self.command = self.command + np.minimum(np.maximum(target - self.command, -step), step)
+        return self.command
+
+    def hold(self) -> None:
+        """The command back to rest (the robot stands), so walking starts from rest, not from a
+        target the ramp reached meanwhile."""
+        self.command = np.zeros(3)
 
 
 class CommandError(ValueError):

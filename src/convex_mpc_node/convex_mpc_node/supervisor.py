@@ -33,11 +33,11 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
-from a1_common.command import CommandError, JointCommand, VelocityCommand
-from a1_common.config import ConfigError, require_choice, require_range, setting
+from a1_common.command import CommandError, CommandShaper, JointCommand, VelocityCommand
+from a1_common.config import ConfigError, config_dir, load_node_parameters, require_choice, require_range, setting
 from a1_common.robot import NUM_JOINTS, NUM_LEGS
 
 from convex_mpc_node.controller import LocomotionController, Observation
@@ -89,6 +89,18 @@ class SupervisorConfig:
         return self
 
 
+def load_supervisor_config(path=None) -> SupervisorConfig:
+    """SupervisorConfig from the controller's parameter file (default ``config/convex_mpc.yaml``),
+    for a node that must act on the same command shaping as the controller (the gait policy)."""
+    path = path or config_dir() / "convex_mpc.yaml"
+    params = load_node_parameters(path, "convex_mpc")
+    try:
+        return SupervisorConfig(**{f.name: params[f.name] for f in fields(SupervisorConfig) if f.name in params}
+                                ).validated()
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
 @dataclass
 class StepResult:
     command: JointCommand
@@ -121,9 +133,8 @@ class ControllerSupervisor:
         self.rejected_observations = 0  # steps damped because the observation was unusable
         self.invalid_commands = 0  # controller outputs replaced by damping
         self.last_rejection = ""
-        self._target = np.zeros(3)  # vx, vy, yaw rate requested
-        self._command = np.zeros(3)  # after the acceleration limit
-        self._cmd_time = float("-inf")
+        # vx, vy, yaw rate: requested (target) and after the acceleration limit (command)
+        self._shaper = CommandShaper(self.config.max_acceleration, self.config.cmd_vel_timeout)
         self._gait: GaitParams | None = None
         self._gait_time = float("-inf")
         self._in_fallback_gait = False
@@ -153,8 +164,8 @@ class ControllerSupervisor:
         forgotten with the world it happened in; an e-stop stays latched."""
         self.fallen = self._walking = False
         self._stand_start = self._stopped_since = self._stand_stop_settled_since = self._last_time = None
-        self._target, self._command = np.zeros(3), np.zeros(3)
-        self._cmd_time = self._gait_time = self._velocity_time = float("-inf")
+        self._shaper.reset()
+        self._gait_time = self._velocity_time = float("-inf")
 
     def on_cmd_vel(self, vx: float, vy: float, yaw_rate: float, now: float) -> bool:
         values = np.array([vx, vy, yaw_rate], dtype=float)
@@ -163,8 +174,7 @@ class ControllerSupervisor:
             return False
         cfg = self.config
         limits = np.array([cfg.max_forward_speed, cfg.max_lateral_speed, cfg.max_yaw_rate])
-        self._target = np.clip(values, -limits, limits)  # documented clamp
-        self._cmd_time = now
+        self._shaper.set_target(np.clip(values, -limits, limits), now)  # documented clamp
         return True
 
     def on_gait_params(self, params: GaitParams, now: float) -> bool:
@@ -187,14 +197,14 @@ class ControllerSupervisor:
         if problem is not None:
             self.rejected_observations += 1
             self.last_rejection = f"observation: {problem}"
-            return StepResult(JointCommand.damping(), "invalid_input", VelocityCommand(*self._command))
+            return StepResult(JointCommand.damping(), "invalid_input", VelocityCommand(*self._shaper.command))
         obs = _normalised(obs)
         x, y = obs.orientation[0], obs.orientation[1]
         if not self.fallen and 1.0 - 2.0 * (x * x + y * y) < math.cos(self.config.fall_tilt):  # cos(tilt)
             self.fallen, self._walking, self._stand_start = True, False, None
             self.falls += 1
         if self.fallen:
-            return StepResult(JointCommand.damping(), "fallen", VelocityCommand(*self._command))
+            return StepResult(JointCommand.damping(), "fallen", VelocityCommand(*self._shaper.command))
         result = self._step(now, obs, velocity_fresh, backup_velocity)
         problem = command_problem(result.command)
         if problem is not None:
@@ -223,13 +233,13 @@ class ControllerSupervisor:
             self._walking = False
             return StepResult(JointCommand.damping(), "estop" if self.estopped else "damping", velocity_command)
         if stopping:
-            if self._stopped_since is None and not np.any(self._command):
+            if self._stopped_since is None and not np.any(self._shaper.command):
                 self._stopped_since = now
             if self._stopped_since is None or now - self._stopped_since < STOP_SETTLE_TIME:
                 self.stopping_steps += 1
                 return self._walk(now, dt, obs, velocity_command, "stopping")
         if stop_to_stand:
-            if self._stand_stop_settled_since is None and not np.any(self._command):
+            if self._stand_stop_settled_since is None and not np.any(self._shaper.command):
                 self._stand_stop_settled_since = now
             settled = self._stand_stop_settled_since
             if settled is None or now - settled < STOP_SETTLE_TIME:
@@ -272,18 +282,11 @@ class ControllerSupervisor:
     def _hold_command(self) -> VelocityCommand:
         """Standing: the shaped command stays at zero, so walking starts from rest, not from a
         target the ramp reached while the robot stood."""
-        self._command = np.zeros(3)
+        self._shaper.hold()
         return VelocityCommand(0.0, 0.0, 0.0)
 
     def _limited_command(self, now: float, dt: float, stopping: bool = False) -> VelocityCommand:
-        cfg = self.config
-        target = self._target
-        if stopping or (cfg.cmd_vel_timeout > 0 and now - self._cmd_time > cfg.cmd_vel_timeout):
-            target = np.zeros(3)
-        step = (cfg.stop_deceleration if stopping else cfg.max_acceleration) * dt
-        # np.minimum/np.maximum: np.clip costs several times more on a 3-vector, every 2 ms.
-        self._command = self._command + np.minimum(np.maximum(target - self._command, -step), step)
-        return VelocityCommand(*self._command)
+        return VelocityCommand(*self._shaper.update(now, dt, self.config.stop_deceleration if stopping else None))
 
     def _current_gait(self, now: float, command: VelocityCommand) -> GaitParams:
         if self._gait is not None and now - self._gait_time <= self.config.gait_timeout:

@@ -3,8 +3,12 @@
 The policy comes from the ``policy`` parameter (see policy.make_policy): ``learned`` (the trained
 policy shipped with this package, the default), a learned policy file (.npz from train_es), the
 hand-tuned gaits scheduled by speed (``scheduled``), or one hand-tuned gait by name.
-The measured velocity is /odom's twist (base_link frame) turned into the yaw-aligned frame, the
-frame the policy was trained in.
+The desired velocity the policy sees is /cmd_vel as the controller tracks it (a1_common.command's
+CommandShaper with the controller's ``max_acceleration`` and ``cmd_vel_timeout``, read from
+config/convex_mpc.yaml): the policy was trained on commands that change at most at the paper's
+1 m/s^2, so a step in /cmd_vel must not ask it for the gait of a speed the robot is not at yet. The
+measured velocity is /odom's twist (base_link frame) turned into the yaw-aligned frame, the frame
+the policy was trained in.
 Runs on sim time under a sim bridge (``use_sim_time``), like the rest of the graph.
 
 Bad input: /cmd_vel and /odom with NaN/inf are ignored (the last good value stays); finite values
@@ -22,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from a1_common.command import CommandShaper
 from a1_common.config import (
     ConfigError,
     recording_constraints,
@@ -31,6 +36,7 @@ from a1_common.config import (
 from a1_common.kinematics import heading_frame, quat_to_matrix
 from a1_common.node_support import constrain_parameters, declare_settings, diagnostic_array, run_node
 from a1_interface.contract import COMMAND_QOS, CONTROL_QOS
+from convex_mpc_node.supervisor import load_supervisor_config
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
@@ -62,8 +68,11 @@ class GaitPolicyNode(Node):
             params = declare_settings(self, PARAMETERS)
             rate = require_range("rate", params["rate"], 1.0, 500.0)
             self.policy = make_policy(params["policy"])
+            supervisor = load_supervisor_config()
+            self.shaper = CommandShaper(supervisor.max_acceleration, supervisor.cmd_vel_timeout)
         constrain_parameters(self, params, constraints)  # all read-only: read at start-up
-        self.desired = np.zeros(2)
+        self.desired = np.zeros(2)  # [m/s] x, y as the controller tracks them (the policy's input)
+        self._last_tick: float | None = None  # [s] node clock
         self.measured = np.zeros(3)
         self.policy_name = params["policy"]
         self.ignored_inputs = 0  # /cmd_vel or /odom messages with NaN/inf or no orientation
@@ -84,7 +93,8 @@ class GaitPolicyNode(Node):
     def _on_cmd(self, twist: Twist) -> None:
         values = np.array([twist.linear.x, twist.linear.y], dtype=float)
         if np.all(np.isfinite(values)):
-            self.desired = np.clip(values, -MAX_DESIRED_VELOCITY, MAX_DESIRED_VELOCITY)
+            target = np.clip(values, -MAX_DESIRED_VELOCITY, MAX_DESIRED_VELOCITY)
+            self.shaper.set_target(np.array([target[0], target[1], 0.0]), self._now())
         else:
             self.ignored_inputs += 1
             self.get_logger().warning("ignored /cmd_vel with NaN/inf", throttle_duration_sec=1.0)
@@ -105,7 +115,18 @@ class GaitPolicyNode(Node):
             self.get_logger().warning("ignored /odom with NaN/inf or without a unit orientation",
                                       throttle_duration_sec=1.0)
 
+    def _now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
     def _tick(self) -> None:
+        stamp = self.get_clock().now()  # the gait's time, and the desired velocity's
+        now = stamp.nanoseconds * 1e-9
+        if self._last_tick is not None and now < self._last_tick:  # sim time went back: a new run
+            self.shaper.reset()
+            self._last_tick = None
+        dt = 0.0 if self._last_tick is None else now - self._last_tick
+        self._last_tick = now
+        self.desired = self.shaper.update(now, dt)[:2]
         try:
             params = self.policy(self.desired, self.measured).validated()
         except ConfigError as exc:
@@ -114,7 +135,7 @@ class GaitPolicyNode(Node):
             return
         self.last_gait = params
         msg = GaitParamsMsg()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = stamp.to_msg()
         msg.header.frame_id = "base_link"
         msg.stepping_frequency = params.stepping_frequency
         msg.swing_ratio = params.swing_ratio
@@ -132,6 +153,7 @@ class GaitPolicyNode(Node):
         gait = self.last_gait
         values = {
             "policy": self.policy_name, "desired_velocity": np.round(self.desired, 3).tolist(),
+            "requested_velocity": np.round(self.shaper.target[:2], 3).tolist(),
             "measured_velocity": np.round(self.measured, 3).tolist(),
             "stepping_frequency_hz": f"{gait.stepping_frequency:.2f}" if gait else "n/a",
             "swing_ratio": f"{gait.swing_ratio:.2f}" if gait else "n/a",

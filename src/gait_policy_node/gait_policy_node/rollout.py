@@ -11,12 +11,13 @@ from __future__ import annotations
 import collections
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from a1_common.command import JointCommand, VelocityCommand
 from a1_common.kinematics import heading_frame, quat_to_matrix
 from a1_common.robot import FALL_HEIGHT
+from a1_interface.sensors import SensorReadings
 from a1_sim_bridge.sim import A1Sim, SimConfig
 from convex_mpc_node.controller import ControllerConfig, LocomotionController, Observation, load_controller_config
 from convex_mpc_node.energy import motor_power
@@ -99,6 +100,13 @@ class ClosedLoop:
         self.estimated_velocity = np.zeros(3)  # world [m/s], what the last estimator update gave
         self.step_times = (0.0, 0.0, 0.0)  # [s] wall: estimator, controller, physics of the last step
         self._estimated_at = self._simulated_at = 0.0  # perf_counter marks for step_times
+        self._imu_held: SensorReadings | None = None  # hold_imu's readings, while the IMU is frozen
+
+    def hold_imu(self, held: SensorReadings | None) -> None:
+        """Fault injection, as fault_injection's freeze of /imu/data: until called with None the
+        estimator and controller see ``held``'s IMU content (orientation, rates, acceleration), a
+        sensor that stopped updating; the other readings stay live."""
+        self._imu_held = held
 
     def step(self, command: VelocityCommand) -> None:
         """Estimate, control and simulate one control period; readings and truth are then current."""
@@ -112,6 +120,10 @@ class ClosedLoop:
         """The estimator's update and the controller's joint command for the current readings
         (``elapsed``: sim time since the last control step, when steps were missed)."""
         r = self.readings
+        if self._imu_held is not None:
+            h = self._imu_held
+            r = replace(r, imu_orientation=h.imu_orientation, imu_angular_velocity=h.imu_angular_velocity,
+                                    imu_linear_acceleration=h.imu_linear_acceleration)
         estimate = self.estimator.update(r)
         self._estimated_at = time.perf_counter()
         self.estimated_velocity = estimate.velocity_world
