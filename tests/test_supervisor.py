@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 from a1_common.command import CommandShaper, MotorMode
-from a1_common.config import ConfigError
+from a1_common.config import ConfigError, config_dir, load_node_parameters
 from a1_common.robot import a1
 from convex_mpc_node.controller import LocomotionController, Observation, load_controller_config
 from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
-from convex_mpc_node.supervisor import ControllerSupervisor, SupervisorConfig
+from convex_mpc_node.supervisor import ControllerSupervisor, SupervisorConfig, load_supervisor_config
 
 ROBOT = a1()
 GAITS = load_hand_tuned_gaits()
@@ -218,3 +218,14 @@ def test_command_shaper_ramps_to_the_target_times_out_to_zero_and_stops_at_its_r
     assert not np.any(shaper.command)
     with pytest.raises(ConfigError, match="acceleration"):
         CommandShaper(acceleration=0.0, timeout=1.0)
+
+
+def test_load_supervisor_config_reads_the_controller_file_and_names_a_bad_value(tmp_path):
+    """The gait policy node shapes /cmd_vel with these values, so a bad one must stop it with the reason."""
+    file = load_node_parameters(config_dir() / "convex_mpc.yaml", "convex_mpc")
+    loaded = load_supervisor_config()
+    assert (loaded.max_acceleration, loaded.cmd_vel_timeout) == (file["max_acceleration"], file["cmd_vel_timeout"])
+    bad = tmp_path / "convex_mpc.yaml"
+    bad.write_text("/**/convex_mpc:\n  ros__parameters:\n    max_acceleration: -1.0\n")
+    with pytest.raises(ConfigError, match=r"convex_mpc.yaml: max_acceleration"):
+        load_supervisor_config(bad)

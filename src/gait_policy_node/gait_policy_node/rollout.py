@@ -123,7 +123,7 @@ class ClosedLoop:
         if self._imu_held is not None:
             h = self._imu_held
             r = replace(r, imu_orientation=h.imu_orientation, imu_angular_velocity=h.imu_angular_velocity,
-                                    imu_linear_acceleration=h.imu_linear_acceleration)
+                        imu_linear_acceleration=h.imu_linear_acceleration)
         estimate = self.estimator.update(r)
         self._estimated_at = time.perf_counter()
         self.estimated_velocity = estimate.velocity_world
