@@ -10,19 +10,27 @@ starting at one of --offsets successive 50 ms policy steps (together about a gai
 freeze meets every phase of it), then AFTER s more. A run counts as a fall by the training's test
 (tilt over 30 deg or base below the fall height). Prints one table and one JSON line.
 
+``--realtime-controller``: the controller with config/convex_mpc_realtime.yaml over
+config/convex_mpc.yaml, as realtime graphs run it (MPC every 5 steps, smoother forces), the solve
+in line rather than in a worker (deterministic). It predicts the realtime scenario better than the
+lockstep values: measured 2026-12-03, docs/results/RESULTS.md.
+
 Usage: source scripts/env.sh && python benchmarks/imu_freeze_margin.py
        [--policies learned,training/cmaes-walk-init/best_policy.npz,rapid_trot] [--speeds 1.0,1.5,2.0]
-       [--freeze-ms 200] [--offsets 10] [--workers 2]
+       [--freeze-ms 200] [--offsets 10] [--workers 2] [--realtime-controller]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
+from a1_common.config import config_dir
+from convex_mpc_node.controller import ControllerConfig, load_controller_config
 from gait_policy_node.env import GaitEnv
 from gait_policy_node.eval_policy import resolve_policy
 from gait_policy_node.rollout import POLICY_PERIOD
@@ -34,11 +42,19 @@ SETTLE = 1.0  # [s] at speed before the first freeze
 AFTER = 1.5  # [s] after the freeze ends; the realtime scenario asks for recovery within 1.5 s
 
 
-def run(spec: str, speed: float, offset: int, freeze_steps: int) -> tuple[float | None, float]:
+def realtime_controller_config() -> ControllerConfig:
+    """The controller as realtime graphs configure it, its MPC solved in line (no worker process)."""
+    config = load_controller_config(overlays=(config_dir() / "convex_mpc_realtime.yaml",))
+    return dataclasses.replace(config, mpc_async=False)
+
+
+def run(spec: str, speed: float, offset: int, freeze_steps: int,
+        controller: ControllerConfig | None = None) -> tuple[float | None, float]:
     """(sim time of the fall [s] or None, lowest base height from the freeze on [m], sampled every
-    policy step) for one freeze starting ``offset`` policy steps after the settle."""
+    policy step) for one freeze starting ``offset`` policy steps after the settle; ``controller``
+    None: config/convex_mpc.yaml's."""
     policy, config = resolve_policy(spec)
-    env = GaitEnv(config.env, config.reward)
+    env = GaitEnv(config.env, config.reward, controller_config=controller)
     try:
         obs = env.reset(seed=0, profile=speed_profiles.ramp(speed, ACCELERATION))
         start = round((speed / ACCELERATION + SETTLE) / POLICY_PERIOD) + offset
@@ -67,6 +83,8 @@ def main() -> None:
     parser.add_argument("--freeze-ms", type=float, default=200.0, help="freeze length [ms], a multiple of 50")
     parser.add_argument("--offsets", type=int, default=10, help="freeze starts, 50 ms apart (1-40)")
     parser.add_argument("--workers", type=int, default=2, help="worker processes (1-64)")
+    parser.add_argument("--realtime-controller", action="store_true",
+                        help="the realtime overlay's controller values (MPC in line, not in a worker)")
     args = parser.parse_args()
     try:
         speeds = [float(v) for v in args.speeds.split(",") if v.strip()]
@@ -88,15 +106,17 @@ def main() -> None:
         except (ValueError, OSError) as exc:
             parser.error(f"--policies: {spec!r}: {exc}")
 
+    controller = realtime_controller_config() if args.realtime_controller else None
     jobs = [(spec, speed, offset) for spec in policies for speed in speeds for offset in range(args.offsets)]
     print(f"IMU frozen {args.freeze_ms:g} ms at {args.offsets} phases, {SETTLE:g} s after the ramp "
-          f"({ACCELERATION:g} m/s^2); {len(jobs)} runs on {args.workers} workers")
+          f"({ACCELERATION:g} m/s^2); {len(jobs)} runs on {args.workers} workers; controller: "
+          f"{'realtime overlay, MPC in line' if controller else 'config/convex_mpc.yaml'}")
     header = f"{'policy':<48}{'speed':>7}{'falls':>8}{'lowest base min/median [m]':>30}"
     print(header)
     print("-" * len(header))
     results: dict[str, dict] = {}
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        futures = {job: pool.submit(run, *job, freeze_steps) for job in jobs}
+        futures = {job: pool.submit(run, *job, freeze_steps, controller) for job in jobs}
         for spec in policies:
             results[spec] = {}
             for speed in speeds:
@@ -109,7 +129,8 @@ def main() -> None:
                     "falls": len(falls), "runs": args.offsets, "fall_times_s": falls,
                     "lowest_base_min_m": round(float(lowest.min()), 4),
                     "lowest_base_median_m": round(float(np.median(lowest)), 4)}
-    print(json.dumps({"imu_freeze_s": args.freeze_ms / 1000.0, "by_policy_and_speed_m_per_s": results}))
+    print(json.dumps({"imu_freeze_s": args.freeze_ms / 1000.0, "realtime_controller": bool(controller),
+                      "by_policy_and_speed_m_per_s": results}))
 
 
 if __name__ == "__main__":

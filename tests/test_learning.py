@@ -17,7 +17,7 @@ from gait_policy_node.gait_analysis import classify_gait, transition_speeds
 from gait_policy_node.learned_policy import NetworkPolicy, decode_action, load_policy, save_policy
 from gait_policy_node.policy import make_policy
 from gait_policy_node.rollout_workers import run_episode
-from gait_policy_node.sweep_gaits import compare_with_hand_tuned, lag_family_offsets, sweep
+from gait_policy_node.sweep_gaits import compare_with_hand_tuned, lag_family_offsets, lag_name, sweep
 from gait_policy_node.train_config import (
     ActionConfig,
     EnvConfig,
@@ -347,6 +347,16 @@ def test_lag_family_runs_from_the_trot_to_both_walks_and_refuses_what_it_cannot_
         sweep(config, [], [0.5], [1.5], [], hold=3.0, workers=1, lags=[30])
     with pytest.raises(ConfigError, match=r"--lags must be in \[-180, 180\]"):
         lag_family_offsets(200)
+
+
+def test_lag_pair_splits_one_diagonal_and_keeps_the_other_a_trots():
+    deg = np.degrees
+    assert np.allclose(deg(lag_family_offsets(-30, "FR-RL")), (0, 180, 180, 330))  # RL lags FR by 30 deg
+    assert np.allclose(deg(lag_family_offsets(-30, "FL-RR")), (0, 180, 150, 0))
+    assert np.allclose(lag_family_offsets(0, "FR-RL"), lag_family_offsets(0))  # lag 0: the trot, whichever pair
+    assert lag_name(-30, "FR-RL") == "FR-RL-30" and lag_name(-30) == "lag-30"
+    with pytest.raises(ConfigError, match="--lag-pair must be one of both, FR-RL, FL-RR"):
+        lag_family_offsets(10, "FR-FL")
 
 
 def test_config_train_es_yaml_holds_the_dataclasses_own_defaults():

@@ -178,3 +178,18 @@ def test_controller_config_file_loads_and_rejects_unknown_keys(tmp_path):
     bad.write_text("convex_mpc:\n  ros__parameters:\n    mpc_friction_coefficient: -1.0\n")
     with pytest.raises(ConfigError, match="friction_coefficient"):
         load_controller_config(bad)
+
+
+def test_controller_config_overlay_overrides_only_its_keys_and_is_named_in_errors(tmp_path):
+    """The realtime overlay, as a second --params-file: its values win, the rest is the base file's."""
+    from a1_common.config import config_dir
+    from convex_mpc_node.controller import ControllerConfig, load_controller_config
+
+    realtime = load_controller_config(overlays=(config_dir() / "convex_mpc_realtime.yaml",))
+    assert realtime.mpc_async and realtime.mpc_period_steps == 5 and realtime.mpc.force_weight == 1.0e-5
+    base = ControllerConfig()
+    assert realtime.control_period == base.control_period and realtime.mpc.horizon == base.mpc.horizon
+    bad = tmp_path / "overlay.yaml"
+    bad.write_text("/**/convex_mpc:\n  ros__parameters:\n    mpc_period_steps: 0\n")
+    with pytest.raises(ConfigError, match=r"overlay\.yaml.*mpc_period_steps"):
+        load_controller_config(overlays=(bad,))

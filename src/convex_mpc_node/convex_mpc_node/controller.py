@@ -128,16 +128,20 @@ def controller_config_from_parameters(params: dict, source: str = "parameters") 
         raise ConfigError(f"{source}: {exc}") from None
 
 
-def load_controller_config(path=None, ignore: frozenset[str] = frozenset()) -> ControllerConfig:
-    """ControllerConfig from the node's parameter file (default ``config/convex_mpc.yaml``).
+def load_controller_config(path=None, ignore: frozenset[str] = frozenset(), overlays: tuple = ()) -> ControllerConfig:
+    """ControllerConfig from the node's parameter file (default ``config/convex_mpc.yaml``), then
+    each of ``overlays`` over it (as a second ``--params-file`` would: e.g. the realtime overlay).
 
     Keys in ``ignore`` belong to the node, not the controller core (default: the supervisor's and
     the node's own, which live in the same file).
     """
-    path = path or config_dir() / "convex_mpc.yaml"
-    params = load_node_parameters(path, "convex_mpc")
+    paths = [path or config_dir() / "convex_mpc.yaml", *overlays]
+    params = {}
+    for each in paths:
+        params.update(load_node_parameters(each, "convex_mpc"))
     skip = ignore or NODE_ONLY_PARAMETERS
-    return controller_config_from_parameters({k: v for k, v in params.items() if k not in skip}, str(path))
+    return controller_config_from_parameters({k: v for k, v in params.items() if k not in skip},
+                                             " + ".join(str(p) for p in paths))
 
 
 # Keys of config/convex_mpc.yaml that configure the supervisor and the node, not the controller core.

@@ -2,7 +2,8 @@
 
     sweep_gaits [--gaits walk slow_trot rapid_trot fly_trot] [--speeds 0.3 0.5 1.0 1.5 2.0 2.5]
                 [--frequencies 1.0 1.5 2.0 2.5 3.0 3.5 4.0] [--swing-ratios 0.3 0.4 ...]
-                [--lags -60 -30 0 30 ...] [--policy a.npz ...] [--hold 4.0] [--workers N] [--out DIR]
+                [--lags -60 -30 0 30 ...] [--lag-pair both|FR-RL|FL-RR] [--policy a.npz ...]
+                [--hold 4.0] [--workers N] [--out DIR]
 
 For each hand-tuned gait (its phase offsets and swing ratio from config/gaits.yaml), at each speed,
 every stepping frequency of the grid runs a constant-speed episode (ramp at 1 m/s^2, then
@@ -11,8 +12,9 @@ mean speed and power of the last 3 s) is kept. With ``--swing-ratios`` every gai
 of those swing ratios instead of its own (the frequency and swing ratio with the highest reward
 are kept): which footfall pattern is cheapest once its timing is tuned too. ``--lags`` adds the
 one-parameter family between the trot and the four-beat walks (``lag_family_offsets``), one gait
-per lag, each at every frequency and swing ratio of the grids. Learned policies run the same
-episodes. Writes sweep.csv (every run), best.csv (the table), cost_of_transport.png (CoT
+per lag, each at every frequency and swing ratio of the grids; ``--lag-pair FR-RL`` (or FL-RR)
+splits only that diagonal pair, the other a trot's (the learned policies' middle-speed gaits).
+Learned policies run the same episodes. Writes sweep.csv (every run), best.csv (the table), cost_of_transport.png (CoT
 against speed, one curve per gait and policy) into ``--out`` (default log/sweep/<time>/).
 CoT = P / (m g v) with the reward's m. With ``--lags`` also cost_of_transport_by_lag.png.
 """
@@ -47,22 +49,30 @@ TRACKING_TOLERANCE = 0.05  # relative speed error of a run that counts as tracki
 _ENV: GaitEnv | None = None
 
 
-def lag_family_offsets(lag_deg: float) -> tuple[float, float, float, float]:
+LAG_PAIRS = ("both", "FR-RL", "FL-RR")  # which diagonal pairs a lag splits
+
+
+def lag_family_offsets(lag_deg: float, pair: str = "both") -> tuple[float, float, float, float]:
     """Phase offsets [rad] of FR, FL, RR, RL for a diagonal lag [deg]: FR 0, FL pi, RR pi + lag, RL lag.
 
     Lag 0 is the trot; each diagonal pair then splits by ``lag``: +90 is the paper's walk (swing
     order RR, FL, RL, FR: a hind leg, then the fore leg of the other side), -90 the walk in the
     other order (RL, FL, RR, FR: a hind leg, then the fore leg of its own side). Every lag other
-    than 0 and +-180 gives four footfalls a cycle."""
+    than 0 and +-180 gives four footfalls a cycle. ``pair`` "FR-RL" or "FL-RR" splits only that
+    pair (RL lag, or RR pi + lag) and keeps the other a trot's: the learned policies' middle gaits."""
     if not -180.0 <= lag_deg <= 180.0:
         raise ConfigError(f"--lags must be in [-180, 180] deg, got {lag_deg}")
+    if pair not in LAG_PAIRS:
+        raise ConfigError(f"--lag-pair must be one of {', '.join(LAG_PAIRS)}, got {pair!r}")
     lag = math.radians(lag_deg)
-    return 0.0, math.pi, (math.pi + lag) % (2 * math.pi), lag % (2 * math.pi)
+    rr = (math.pi + lag) % (2 * math.pi) if pair != "FR-RL" else math.pi
+    rl = lag % (2 * math.pi) if pair != "FL-RR" else 0.0
+    return 0.0, math.pi, rr, rl
 
 
-def lag_name(lag_deg: float) -> str:
-    """The gait's name in tables and plots: lag+30, lag-45, ..."""
-    return f"lag{lag_deg:+g}"
+def lag_name(lag_deg: float, pair: str = "both") -> str:
+    """The gait's name in tables and plots: lag+30, lag-45, ...; FR-RL-30 with one pair split."""
+    return f"lag{lag_deg:+g}" if pair == "both" else f"{pair}{lag_deg:+g}"
 
 
 def _init_worker(config_dict: dict) -> None:
@@ -103,10 +113,10 @@ def _run_task(task: tuple) -> dict:
 
 def sweep(config: TrainConfig, gaits: list[str], speeds: list[float], frequencies: list[float],
           policies: list[str], hold: float, workers: int, swing_ratios: list[float] | None = None,
-          lags: list[float] | None = None) -> list[dict]:
+          lags: list[float] | None = None, lag_pair: str = "both") -> list[dict]:
     """Every (gait, speed, frequency[, swing ratio]) and (policy, speed) run, in parallel on
     ``workers`` processes; ``swing_ratios`` None: each gait's own. Each of ``lags`` [deg] adds the
-    gait ``lag_family_offsets(lag)``, which needs ``swing_ratios``."""
+    gait ``lag_family_offsets(lag, lag_pair)``, which needs ``swing_ratios``."""
     table = load_hand_tuned_gaits()
     unknown = [g for g in gaits if g not in table]
     if unknown:
@@ -123,7 +133,7 @@ def sweep(config: TrainConfig, gaits: list[str], speeds: list[float], frequencie
              for g in gaits for s in speeds for f in frequencies for r in (swing_ratios or [table[g].swing_ratio])]
     if lags and not swing_ratios:
         raise ConfigError("--lags needs --swing-ratios (the lag family has no swing ratio of its own)")
-    tasks += [(lag_name(lag), (f, r, lag_family_offsets(lag)), s, hold)
+    tasks += [(lag_name(lag, lag_pair), (f, r, lag_family_offsets(lag, lag_pair)), s, hold)
               for lag in lags or [] for s in speeds for f in frequencies for r in swing_ratios]
     for _, (f, r, offsets), _, _ in tasks:
         try:
@@ -210,15 +220,17 @@ def plot_cost_of_transport(rows: list[dict], path: Path) -> None:
                  "Cost of transport against speed (hand-tuned: best stepping frequency)", path)
 
 
-def plot_cost_by_lag(rows: list[dict], lags: list[float], path: Path) -> None:
+def plot_cost_by_lag(rows: list[dict], lags: list[float], path: Path, pair: str = "both") -> None:
     """Cost of transport of the lag family against the lag, one curve per speed (best timing each)."""
-    lag_of = {lag_name(lag): lag for lag in lags}
+    lag_of = {lag_name(lag, pair): lag for lag in lags}
     family = [r for r in rows if r["name"] in lag_of and not r["fell"]]
     curves = {f"{speed:g} m/s": [(lag_of[r["name"]], r["cost_of_transport"]) for r in family
                                  if r["target_speed"] == speed]
               for speed in sorted({r["target_speed"] for r in family})}
-    _plot_curves(curves, "diagonal lag [deg]   (-90: walk, sequence RL FL RR FR;  0: trot;  +90: the paper's walk)",
-                 "Trot-to-walk family: best stepping frequency and swing ratio per point", path, vline=0.0)
+    xlabel = ("diagonal lag [deg]   (-90: walk, sequence RL FL RR FR;  0: trot;  +90: the paper's walk)"
+              if pair == "both" else f"{pair} lag [deg], the other diagonal a trot's   (0: trot)")
+    _plot_curves(curves, xlabel, "Trot-to-walk family: best stepping frequency and swing ratio per point", path,
+                 vline=0.0)
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:
@@ -242,6 +254,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="run every gait at each of these swing ratios (default: each gait's own)")
     parser.add_argument("--lags", nargs="+", type=float, default=[],
                         help="also the trot-to-walk family at these diagonal lags [deg] (needs --swing-ratios)")
+    parser.add_argument("--lag-pair", choices=LAG_PAIRS, default="both",
+                        help="the diagonal pairs a lag splits (default both: the walks; FR-RL, FL-RR: that one)")
     parser.add_argument("--policy", action="append", default=[],
                         help="learned policy .npz, or 'learned' for the shipped one (repeatable)")
     parser.add_argument("--hold", type=float, default=4.0, help="seconds at the target speed (>= 3)")
@@ -262,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
         config = dataclasses.replace(config, env=dataclasses.replace(config.env, observation="basic"))
         start = time.monotonic()
         results = sweep(config, args.gaits, args.speeds, args.frequencies, args.policy, args.hold, args.workers,
-                        args.swing_ratios, args.lags)
+                        args.swing_ratios, args.lags, args.lag_pair)
     except ConfigError as exc:
         print(f"sweep_gaits: {exc}", file=sys.stderr)
         return 2
@@ -273,7 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     write_csv(out / "best.csv", best)
     plot_cost_of_transport(best, out / "cost_of_transport.png")
     if args.lags:
-        plot_cost_by_lag(best, args.lags, out / "cost_of_transport_by_lag.png")
+        plot_cost_by_lag(best, args.lags, out / "cost_of_transport_by_lag.png", args.lag_pair)
     names = list(dict.fromkeys(r["name"] for r in best))
     speeds = sorted({r["target_speed"] for r in best})
     cell = {(r["name"], r["target_speed"]): r for r in best}
@@ -291,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
             line += f"{text:>{width}}"
         print(line)
     policies = [Path(p).stem for p in args.policy]
-    for r in compare_with_hand_tuned(best, args.gaits + [lag_name(lag) for lag in args.lags], policies):
+    for r in compare_with_hand_tuned(best, args.gaits + [lag_name(lag, args.lag_pair) for lag in args.lags], policies):
         rival = (f"{r['best_gait']} [{r['best_frequency']:.1f} Hz] CoT {r['best_cost_of_transport']:.3f}"
                  if r["best_gait"] else f"no hand-tuned gait tracks within {100 * TRACKING_TOLERANCE:.0f} %")
         mine = "fell" if r["fell"] else f"CoT {r['cost_of_transport']:.3f}, error {100 * r['speed_error']:.1f} %"
