@@ -12,14 +12,12 @@ import dataclasses
 
 import numpy as np
 import pytest
-from a1_common.config import ConfigError, config_dir, load_node_parameters
+from a1_common.config import ConfigError, config_dir
 from convex_mpc_node.controller import (
     MAX_CATCH_UP,
-    NODE_ONLY_PARAMETERS,
     ControllerConfig,
     Observation,
     VelocityCommand,
-    controller_config_from_parameters,
     load_controller_config,
 )
 from convex_mpc_node.gait import gait_for_speed, load_hand_tuned_gaits
@@ -90,6 +88,36 @@ def test_standing_still_does_not_drift():
     assert np.abs(estimated.mean(axis=0)).max() <= 0.02  # the estimate does not drift either
 
 
+def test_hold_imu_feeds_the_held_imu_content_and_the_other_readings_live():
+    """The in-process frozen IMU (benchmarks/imu_freeze_margin.py): while held, the estimator and the
+    controller see the held orientation, rates and acceleration; joints stay live; released, all live."""
+    loop = ClosedLoop(GAITS["slow_trot"])
+    seen: list[Observation] = []
+    step = loop.controller.step
+    loop.controller.step = lambda obs, command, elapsed=None: seen.append(obs) or step(obs, command, elapsed)
+    estimator_update = loop.estimator.update
+    samples = []
+    loop.estimator.update = lambda sample: samples.append(sample) or estimator_update(sample)
+    try:
+        loop.step(VelocityCommand(0.5))
+        held = loop.readings
+        loop.hold_imu(held)
+        for _ in range(5):
+            loop.step(VelocityCommand(0.5))
+        loop.hold_imu(None)
+        loop.step(VelocityCommand(0.5))
+    finally:
+        loop.sim.close()
+    assert len(seen) == len(samples) == 7
+    for obs, sample in zip(seen[1:6], samples[1:6], strict=True):
+        assert np.array_equal(obs.orientation, held.imu_orientation)
+        assert np.array_equal(obs.angular_velocity, held.imu_angular_velocity)
+        assert np.array_equal(sample.imu_linear_acceleration, held.imu_linear_acceleration)
+    assert not np.array_equal(seen[5].joint_position, held.joint_position)  # joints stayed live
+    assert not np.array_equal(seen[6].orientation, held.imu_orientation)  # released: live again
+    assert not np.array_equal(samples[6].imu_linear_acceleration, held.imu_linear_acceleration)
+
+
 @pytest.mark.slow
 def test_controller_alone_on_ground_truth_velocity():
     """The controller without the estimator (isolates control from estimation problems)."""
@@ -126,9 +154,7 @@ def test_mpc_every_third_step_still_trots_and_resolves_on_contact_changes():
 
 def realtime_controller_config() -> ControllerConfig:
     """config/convex_mpc_realtime.yaml over convex_mpc.yaml: what realtime graphs run."""
-    params = {**load_node_parameters(CONFIG / "convex_mpc.yaml", "convex_mpc"),
-              **load_node_parameters(CONFIG / "convex_mpc_realtime.yaml", "convex_mpc")}
-    return controller_config_from_parameters({k: v for k, v in params.items() if k not in NODE_ONLY_PARAMETERS})
+    return load_controller_config(overlays=(CONFIG / "convex_mpc_realtime.yaml",))
 
 
 @pytest.mark.slow
