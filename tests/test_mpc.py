@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import osqp
 import pytest
@@ -183,12 +185,12 @@ def test_controller_config_file_loads_and_rejects_unknown_keys(tmp_path):
 def test_controller_config_overlay_overrides_only_its_keys_and_is_named_in_errors(tmp_path):
     """The realtime overlay, as a second --params-file: its values win, the rest is the base file's."""
     from a1_common.config import config_dir
-    from convex_mpc_node.controller import ControllerConfig, load_controller_config
+    from convex_mpc_node.controller import load_controller_config
 
     realtime = load_controller_config(overlays=(config_dir() / "convex_mpc_realtime.yaml",))
     assert realtime.mpc_async and realtime.mpc_period_steps == 5 and realtime.mpc.force_weight == 1.0e-5
-    base = ControllerConfig()
-    assert realtime.control_period == base.control_period and realtime.mpc.horizon == base.mpc.horizon
+    base = dataclasses.replace(load_controller_config(), mpc_async=True, mpc_period_steps=5)
+    assert realtime == dataclasses.replace(base, mpc=dataclasses.replace(base.mpc, force_weight=1.0e-5))
     bad = tmp_path / "overlay.yaml"
     bad.write_text("/**/convex_mpc:\n  ros__parameters:\n    mpc_period_steps: 0\n")
     with pytest.raises(ConfigError, match=r"overlay\.yaml.*mpc_period_steps"):
