@@ -357,6 +357,8 @@ def test_lag_pair_splits_one_diagonal_and_keeps_the_other_a_trots():
     assert lag_name(-30, "FR-RL") == "FR-RL-30" and lag_name(-30) == "lag-30"
     with pytest.raises(ConfigError, match="--lag-pair must be one of both, FR-RL, FL-RR"):
         lag_family_offsets(10, "FR-FL")
+    with pytest.raises(ConfigError, match="--lag-pair FR-RL needs --lags"):
+        sweep(load_train_config(), [], [0.5], [1.5], [], hold=3.0, workers=1, swing_ratios=[0.3], lag_pair="FR-RL")
 
 
 def test_config_train_es_yaml_holds_the_dataclasses_own_defaults():

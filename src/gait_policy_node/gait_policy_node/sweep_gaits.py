@@ -133,6 +133,8 @@ def sweep(config: TrainConfig, gaits: list[str], speeds: list[float], frequencie
              for g in gaits for s in speeds for f in frequencies for r in (swing_ratios or [table[g].swing_ratio])]
     if lags and not swing_ratios:
         raise ConfigError("--lags needs --swing-ratios (the lag family has no swing ratio of its own)")
+    if lag_pair != "both" and not lags:
+        raise ConfigError(f"--lag-pair {lag_pair} needs --lags (the lags that pair is split by)")
     tasks += [(lag_name(lag, lag_pair), (f, r, lag_family_offsets(lag, lag_pair)), s, hold)
               for lag in lags or [] for s in speeds for f in frequencies for r in swing_ratios]
     for _, (f, r, offsets), _, _ in tasks:
@@ -227,10 +229,13 @@ def plot_cost_by_lag(rows: list[dict], lags: list[float], path: Path, pair: str 
     curves = {f"{speed:g} m/s": [(lag_of[r["name"]], r["cost_of_transport"]) for r in family
                                  if r["target_speed"] == speed]
               for speed in sorted({r["target_speed"] for r in family})}
-    xlabel = ("diagonal lag [deg]   (-90: walk, sequence RL FL RR FR;  0: trot;  +90: the paper's walk)"
-              if pair == "both" else f"{pair} lag [deg], the other diagonal a trot's   (0: trot)")
-    _plot_curves(curves, xlabel, "Trot-to-walk family: best stepping frequency and swing ratio per point", path,
-                 vline=0.0)
+    if pair == "both":
+        xlabel = "diagonal lag [deg]   (-90: walk, sequence RL FL RR FR;  0: trot;  +90: the paper's walk)"
+        title = "Trot-to-walk family: best stepping frequency and swing ratio per point"
+    else:
+        xlabel = f"{pair} lag [deg], the other diagonal a trot's   (0: trot)"
+        title = f"Trot with the {pair} pair split: best stepping frequency and swing ratio per point"
+    _plot_curves(curves, xlabel, title, path, vline=0.0)
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:
