@@ -102,9 +102,11 @@ def graph(tmp_path, rclpy_context):
 @pytest.mark.slow
 def test_two_namespaced_lockstep_graphs_walk_side_by_side(tmp_path, rclpy_context):
     """Two whole graphs at once, /a1_1 and /a1_2 (``-r __ns:=...``, the parameter files' ``/**/``
-    keys, each graph's own /clock): each robot walks at its own commanded speed, and nothing of
-    either lands in the root namespace."""
+    keys, each graph's own /clock), /a1_1 in the composed form (its chain one process) and /a1_2
+    a process a node: each robot walks at its own commanded speed, and nothing of either lands in
+    the root namespace."""
     speeds = {"/a1_1": 0.5, "/a1_2": 1.0}
+    composed_forms = {"/a1_1": True, "/a1_2": False}
     graphs = {ns: Graph(tmp_path / ns.strip("/"), namespace=ns) for ns in speeds}
     watchers = {ns: Watcher(rclpy_context, namespace=ns) for ns in speeds}
     executor = SingleThreadedExecutor(context=rclpy_context)
@@ -114,7 +116,8 @@ def test_two_namespaced_lockstep_graphs_walk_side_by_side(tmp_path, rclpy_contex
     try:
         for ns, g in graphs.items():
             (tmp_path / ns.strip("/")).mkdir()
-            g.start_stack("lockstep", 0.5)
+            g.start_stack("lockstep", 0.5, composed_chain=composed_forms[ns])
+        assert sorted(graphs["/a1_1"].procs) == ["control_chain", "gait_policy"]
         for ns, g in graphs.items():
             run_until(executor, watchers[ns], g, 6.5, wall_timeout=400)
         for ns, watcher in watchers.items():
@@ -194,8 +197,9 @@ def test_reset_after_seconds_of_walking_stands_up_and_walks_again(graph, clock):
 @pytest.mark.slow
 def test_paper_acceleration_profile_stays_up(graph):
     g, watcher, executor = graph
-    # Embedded estimator: the estimator process is covered by the 1 m/s test and the fault scenarios.
-    g.start_stack("lockstep", 0.5, "embedded_estimator:=true")
+    # Composed (the demo's form), embedded estimator: the estimator process and the separate form
+    # are covered by the 1 m/s test and the fault scenarios.
+    g.start_stack("lockstep", 0.5, "embedded_estimator:=true", composed_chain=True)
     g.start("velocity_command", "gait_policy_node", "velocity_command", "--ros-args", "-p", "use_sim_time:=true",
             "-p", "profile:=ramp", "-p", "speed:=2.5", "-p", "acceleration:=1.0", "-p", "start_delay:=1.5")
     watcher.speed = None  # velocity_command drives
