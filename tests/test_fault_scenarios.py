@@ -7,7 +7,10 @@ wall clock with the controller's 2 ms deadline, misses and all. Faults on topics
 fault_relay processes (src/fault_injection) timed by the messages' sim-time stamps; QP failures from
 the controller's ``inject_qp_failures`` parameter; node deaths from SIGKILL. The estimator runs
 inside the controller (``embedded_estimator``) except in the scenario that kills the estimator
-process (lockstep only: the realtime configuration always embeds it).
+process (lockstep only: the realtime configuration always embeds it). The graph runs in the form
+bring-up starts by default, the bridge and the controller composed in one control_chain process
+(fault relays then sit between that process and itself, on the node-scoped remapped topics), except
+where a scenario kills the controller or the estimator: there each node is its own process.
 
 Realtime runs at REALTIME_FACTOR (GAIT_STACK_REALTIME_FACTOR, default 0.25) of the wall clock: on the
 2-core reference machine the whole graph cannot hold 500 Hz of wall time (docs/reliability.md). The
@@ -148,9 +151,10 @@ def scenario(tmp_path, rclpy_context, fault_scenarios):
         made["probe"].destroy_node()
 
 
-def start(graph: Graph, clock: str, *controller_params: str, **kwargs) -> None:
-    """The stack in ``clock`` mode (realtime at REALTIME_FACTOR), with the scenarios' lockstep timeout."""
-    graph.start_stack(clock, 0.05, *controller_params,
+def start(graph: Graph, clock: str, *controller_params: str, composed_chain: bool = True, **kwargs) -> None:
+    """The stack in ``clock`` mode (realtime at REALTIME_FACTOR), with the scenarios' lockstep timeout,
+    by default in the form bring-up starts (``composed_chain``: bridge and controller one process)."""
+    graph.start_stack(clock, 0.05, *controller_params, composed_chain=composed_chain,
                       real_time_factor=REALTIME_FACTOR if clock == "realtime" else 1.0, **kwargs)
 
 
@@ -284,7 +288,7 @@ def test_controller_killed_at_1_5_mps_damps_within_50_ms(scenario, clock):
     arrival of the killed controller's last command."""
     make, report = scenario
     graph, probe, executor = make(joints=True)
-    start(graph, clock, *EMBEDDED)
+    start(graph, clock, *EMBEDDED, composed_chain=False)  # the controller a process of its own, to kill
     run_until(executor, probe, graph, FAULT_AT)
     assert probe.lowest(1.0) > FELL_BELOW, f"fell before the fault: base at {probe.lowest(1.0):.3f} m"
     bridge = lambda: probe.diagnostics.get("a1_sim_bridge", {})  # noqa: E731
