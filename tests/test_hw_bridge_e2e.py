@@ -85,8 +85,11 @@ def test_hil_walks_1_mps_then_damps_within_50_ms_of_controller_death(hil):
 @pytest.mark.ros
 @pytest.mark.slow
 def test_hil_5_percent_packet_loss_does_not_fall(hil):
+    """In the composed form (hw_bridge, estimator and controller one process, as bring-up starts
+    them), lockstep; the separate form is the controller-death test's."""
     g, watcher, executor, diagnostics = hil
-    g.start_hil("lockstep", packet_loss=0.05)
+    g.start_hil("lockstep", packet_loss=0.05, composed_chain=True)
+    assert sorted(g.procs) == ["control_chain", "gait_policy", "virtual_a1"]
     watcher.speed = 1.0
     run_until(executor, watcher, g, 6.0, wall_timeout=300)  # 2.5 s at 1.0 m/s (reached at about 3.5 s)
     assert watcher.lowest() > 0.18, "fell"
