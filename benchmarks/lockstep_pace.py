@@ -50,9 +50,7 @@ def run(variant: str, args: argparse.Namespace) -> dict:
     composed, params = VARIANTS[variant]
     graph = Graph(Path(tempfile.mkdtemp(prefix=f"lockstep_pace_{variant}_")))
     graph.start_stack("lockstep", 0.5, *params, composed_chain=composed)
-    graph.start("velocity_command", "gait_policy_node", "velocity_command", "--ros-args", "-p", "use_sim_time:=true",
-                "-p", "profile:=ramp", "-p", f"speed:={args.top_speed}", "-p", "acceleration:=1.0",
-                "-p", f"start_delay:={RAMP_START}")
+    graph.start_velocity_ramp(speed=args.top_speed, acceleration=1.0, start_delay=RAMP_START)
     if args.record:
         graph.start("bag_recorder", "bag_recorder", "record", "--ros-args", "-p",
                     f"output:={graph.log_dir / 'bag'}", "-p", "use_sim_time:=true")

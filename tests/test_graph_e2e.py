@@ -201,8 +201,7 @@ def test_paper_acceleration_profile_stays_up(graph):
     # Composed (the demo's form), embedded estimator: the estimator process and the separate form
     # are covered by the 1 m/s test and the fault scenarios.
     g.start_stack("lockstep", 0.5, "embedded_estimator:=true", composed_chain=True)
-    g.start("velocity_command", "gait_policy_node", "velocity_command", "--ros-args", "-p", "use_sim_time:=true",
-            "-p", "profile:=ramp", "-p", "speed:=2.5", "-p", "acceleration:=1.0", "-p", "start_delay:=1.5")
+    g.start_velocity_ramp(speed=2.5, acceleration=1.0, start_delay=1.5)
     watcher.speed = None  # velocity_command drives
     run_until(executor, watcher, g, 20.0, wall_timeout=480)
     assert watcher.lowest() > 0.18, "fell"
