@@ -13,7 +13,7 @@
 # MCAP storage, log/demo/bag (unless --no-record). Every node started here is stopped on exit,
 # Ctrl-C or SIGTERM. Per-node logs: log/demo/<node>.log. --form as in scripts/bringup.sh: composed
 # (default: the bridge, estimator and controller in one control_chain process; lockstep runs about
-# 0.4-0.55x real time on 2 cores with the bag, against 0.15-0.4x separate, with a summary alike;
+# 0.5x real time on 2 cores with the bag, against 0.15-0.4x separate, with a summary alike;
 # benchmarks/lockstep_pace.py compares the forms) or separate (a process a node).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"

@@ -62,13 +62,19 @@ def test_lockstep_one_sensor_set_per_command(bridge_graph):
     assert bridge.watchdog.accepted >= 300 and bridge.watchdog.rejected == 0
     assert not bridge.watchdog.in_fallback
     assert bridge.deadlines.uncommanded <= bridge._lockstep_timeouts  # in lockstep only a timed-out step misses
-    # The other sensor topics carry the same stamps, and the clock follows sim time. (Keep-last-1
-    # queues may drop a message the listener was too slow to take, so compare sets, not lists.)
+    # The other sensor topics carry the same stamps, and the clock follows sim time once per
+    # clock_period (10 ms by default: every 5th step). (Keep-last-1 queues may drop a message the
+    # listener was too slow to take, so compare sets, not lists.)
     joint_stamps = set(stamps)
-    for key, get in (("imu", lambda m: m.header.stamp), ("contacts", lambda m: m.header.stamp),
-                     ("clock", lambda m: m.clock)):
-        other = {ns_from_stamp(get(m)) for m in seen[key]}
+    for key in ("imu", "contacts"):
+        other = {ns_from_stamp(m.header.stamp) for m in seen[key]}
         assert len(joint_stamps & other) >= 0.9 * len(joint_stamps), key
+    clock_period_ns = round(bridge.get_parameter("clock_period").value * 1e9)
+    assert clock_period_ns == 5 * STEP_NS
+    clock = {ns_from_stamp(m.clock) for m in seen["clock"]}
+    assert all(t % clock_period_ns == 0 for t in clock), sorted(t for t in clock if t % clock_period_ns)
+    on_period = {t for t in joint_stamps if t % clock_period_ns == 0}
+    assert len(on_period & clock) >= 0.9 * len(on_period)
     msg = seen["joints"][-1]
     assert list(msg.name) == list(bridge.sim.robot.joint_names)
     assert len(msg.position) == len(msg.velocity) == len(msg.effort) == 12
@@ -115,6 +121,8 @@ def test_unknown_or_bad_parameters_are_config_errors(rclpy_context):
         SimBridgeNode(context=rclpy_context, parameter_overrides=[Parameter("lockstep_timeout", value=-1.0)])
     with pytest.raises(ConfigError, match="command_timeout"):
         SimBridgeNode(context=rclpy_context, parameter_overrides=[Parameter("command_timeout", value=0.0)])
+    with pytest.raises(ConfigError, match=r"clock_period must be a multiple of time_step"):
+        SimBridgeNode(context=rclpy_context, parameter_overrides=[Parameter("clock_period", value=0.003)])
 
 
 @contextlib.contextmanager

@@ -40,6 +40,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from a1_common.clock import ClockGate, require_clock_period
 from a1_common.command import CommandWatchdog, DeadlineMonitor, JointCommand
 from a1_common.config import ConfigError, require_choice, require_integer, require_range, setting
 from a1_common.robot import A1Constants, a1
@@ -83,6 +84,7 @@ class BridgeConfig:
     control_period: float = setting(0.002, "command period in realtime mode [s] (0.002: 500 Hz)")
     command_timeout: float = setting(0.04, "no valid /motor_command for this long -> damping [s]")
     lockstep_timeout: float = setting(0.5, "lockstep: wall time to wait for the controller's command [s]")
+    clock_period: float = setting(0.01, "lockstep: publish /clock once per this much robot time [s]")
     state_timeout: float = setting(0.05, "lockstep: wall time to wait for a state reply before re-sending [s]")
     stand_up_time: float = setting(1.0, "safe start: interpolation from the measured pose to the standing pose [s]")
     stand_hold_time: float = setting(0.5, "safe start: hold, reading the feet for the contact calibration [s]")
@@ -105,6 +107,7 @@ class BridgeConfig:
         require_range("control_period", self.control_period, 0.001, 0.01)
         require_range("command_timeout", self.command_timeout, 0.0, 1.0, low_open=True)
         require_range("lockstep_timeout", self.lockstep_timeout, 0.0, 10.0, low_open=True)
+        require_clock_period(self.clock_period)
         require_range("state_timeout", self.state_timeout, 0.0, 1.0, low_open=True)
         require_range("stand_up_time", self.stand_up_time, 0.1, 10.0)
         require_range("stand_hold_time", self.stand_hold_time, 0.01, 10.0)
@@ -209,7 +212,8 @@ class HardwareBridge:
     """Runs BridgeLogic against the robot over UDP in its own thread.
 
     ``publish(readings, stamp_ns)`` is called from that thread for every state while RUNNING;
-    ``publish_clock(stamp_ns)`` (lockstep) for every state; ``clock_ns()`` stamps states in realtime;
+    ``publish_clock(stamp_ns)`` (lockstep) for the first state in each ``clock_period``; ``clock_ns()``
+    stamps states in realtime;
     ``on_failure(exc)`` if the thread dies (after it has sent damping datagrams).
     """
 
@@ -223,6 +227,7 @@ class HardwareBridge:
         self._on_failure = on_failure
         self._publish = publish
         self._publish_clock = publish_clock
+        self._clock_gate = ClockGate(self.config.clock_period)
         self._clock_ns = clock_ns
         self._lock = threading.Condition()
         self._running = False
@@ -415,7 +420,7 @@ class HardwareBridge:
                 self._published_at[stamp_ns] = time.monotonic()
                 if len(self._published_at) > PUBLISHED_STAMPS_KEPT:
                     del self._published_at[next(iter(self._published_at))]
-        if self._publish_clock is not None:
+        if self._publish_clock is not None and self._clock_gate.due(stamp_ns):
             self._publish_clock(stamp_ns)
         if readings is not None:
             self._publish(readings, stamp_ns)

@@ -1,7 +1,8 @@
 """Sim bridge node: the A1Sim core behind the same topics a hardware bridge offers.
 
-Publishes at every 2 ms sim step: /joint_states, /imu/data, /foot_contacts, /clock and (evaluation
-only) /sim/ground_truth/odom; subscribes /motor_command. Clock modes:
+Publishes at every 2 ms sim step: /joint_states, /imu/data, /foot_contacts and (evaluation only)
+/sim/ground_truth/odom, and /clock once per ``clock_period`` (a1_common.clock); subscribes
+/motor_command. Clock modes:
 - lockstep: after publishing the sensors of step k (stamp t_k), wait for a /motor_command stamped
   t_k, apply it and advance; if none comes within ``lockstep_timeout`` of wall time, advance anyway
   (the watchdog then sends the motors to damping after ``command_timeout`` of sim time).
@@ -31,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import rclpy
+from a1_common.clock import ClockGate, require_clock_period
 from a1_common.command import CommandWatchdog, DeadlineMonitor, MotorMode
 from a1_common.config import (
     ConfigError,
@@ -79,6 +81,7 @@ class NodeParameters:
     command_timeout: float = setting(0.05, "no valid /motor_command for this long -> damping [s]")
     lockstep_timeout: float = setting(0.5, "lockstep: wall time to wait for a step's /motor_command [s]")
     real_time_factor: float = setting(1.0, "realtime: sim seconds per wall second")
+    clock_period: float = setting(0.01, "publish /clock once per this much sim time [s], a multiple of time_step")
     publish_ground_truth: bool = setting(True, "publish the true base state on /sim/ground_truth/odom")
     flight_recorder_dir: str = setting("", "write the last seconds before a fall here as .npz ('': off)")
     flight_recorder_seconds: float = setting(5.0, "seconds the flight recorder keeps [s]")
@@ -107,6 +110,7 @@ class SimBridgeNode(Node):
             # speed still runs it with every deadline scaled alike (commands are stamped in sim time).
             self.real_time_factor = require_range("real_time_factor", params["real_time_factor"], 0.0, 1.0,
                                                   low_open=True)
+            self.clock_gate = ClockGate(require_clock_period(params["clock_period"], self.sim.config.time_step))
             self.publish_ground_truth = bool(params["publish_ground_truth"])
             # Flight recorder (off with no directory): the last seconds before a fall, as an .npz.
             self.recorder_dir = str(params["flight_recorder_dir"])
@@ -347,7 +351,7 @@ class SimBridgeNode(Node):
                 self._published_at.popitem(last=False)
         self.pub_joints.publish(joints)
         self._published += 1
-        if self.pub_clock.get_subscription_count():
+        if self.clock_gate.due(stamp_ns) and self.pub_clock.get_subscription_count():
             self.pub_clock.publish(Clock(clock=cv.stamp_from_ns(stamp_ns)))
         if self.publish_ground_truth or self.recorder is not None:
             truth = self.sim.ground_truth()
