@@ -7,6 +7,7 @@ import signal
 import subprocess
 import time
 
+import numpy as np
 import pytest
 from a1_interface.contract import CONTROL_QOS
 from a1_interface.conversions import ns_from_stamp
@@ -65,7 +66,7 @@ def test_bringup_virtual_a1_in_lockstep_runs_on_robot_time_and_stops_clean(virtu
     listener.create_subscription(Clock, "/clock", clock.append, CONTROL_QOS)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(listener)
-    published = spin_until(executor, lambda: len(joints) > 50, 90.0)
+    published = spin_until(executor, lambda: len(joints) > 50 and len(clock) >= 3, 90.0)
     executor.shutdown()
     listener.destroy_node()
     assert published, "the hardware bridge never published"
@@ -73,6 +74,10 @@ def test_bringup_virtual_a1_in_lockstep_runs_on_robot_time_and_stops_clean(virtu
     # and only after the bridge's 1.5 s stand-up.
     first_stamp = ns_from_stamp(joints[0].header.stamp) * 1e-9
     assert 1.5 <= first_stamp < 60.0 and clock
+    # /clock once per clock_period (10 ms in config/a1_hw_bridge.yaml) of the robot's 2 ms ticks: the
+    # first tick of each 10 ms, so successive clock times lie more than 8 ms apart.
+    clock_ns = sorted({ns_from_stamp(m.clock) for m in clock})
+    assert len(clock_ns) >= 2 and min(np.diff(clock_ns)) > 8_000_000, np.diff(clock_ns)[:10]
     os.kill(proc.pid, signal.SIGTERM)
     assert proc.wait(timeout=30) != 0  # the script reports that it was stopped
     alive = []
