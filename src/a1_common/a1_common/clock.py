@@ -5,14 +5,18 @@ nodes that run on sim time (``use_sim_time``). Each of those nodes handles every
 (rclpy updates its clock and checks its timers), so at 500 Hz the clock alone cost the lockstep demo
 graph about a quarter of its pace on 2 cores (docs/architecture.md, "Where the lockstep demo's time
 goes"). None of them needs it that fine: their timers run at 1-20 Hz, and the 500 Hz chain works on
-the sensors' own stamps. So a bridge publishes /clock once per ``clock_period`` of sim time.
+the sensors' own stamps. So a bridge publishes /clock once per ``clock_period`` of sim time. A
+sim-time timer faster than 1 / ``clock_period`` (a ``rate`` over 100 Hz by default) then fires at
+most once per clock message.
 """
 
 from __future__ import annotations
 
 from a1_common.config import ConfigError, require_range
 
-CLOCK_PERIOD_RANGE = (0.001, 1.0)  # [s]: a clock slower than 1 Hz would hold 1 Hz timers back
+# [s]: up to the gait policy's 20 Hz period; a slower clock would hold its timer (and the controller's
+# gait_timeout on /gait/params) back.
+CLOCK_PERIOD_RANGE = (0.001, 0.05)
 
 
 def require_clock_period(value: float, time_step: float | None = None) -> float:

@@ -107,7 +107,7 @@ class BridgeConfig:
         require_range("control_period", self.control_period, 0.001, 0.01)
         require_range("command_timeout", self.command_timeout, 0.0, 1.0, low_open=True)
         require_range("lockstep_timeout", self.lockstep_timeout, 0.0, 10.0, low_open=True)
-        require_clock_period(self.clock_period)
+        require_clock_period(self.clock_period)  # the robot's tick, not control_period, paces lockstep
         require_range("state_timeout", self.state_timeout, 0.0, 1.0, low_open=True)
         require_range("stand_up_time", self.stand_up_time, 0.1, 10.0)
         require_range("stand_hold_time", self.stand_hold_time, 0.01, 10.0)

@@ -351,7 +351,7 @@ class SimBridgeNode(Node):
                 self._published_at.popitem(last=False)
         self.pub_joints.publish(joints)
         self._published += 1
-        if self.clock_gate.due(stamp_ns) and self.pub_clock.get_subscription_count():
+        if self.pub_clock.get_subscription_count() and self.clock_gate.due(stamp_ns):
             self.pub_clock.publish(Clock(clock=cv.stamp_from_ns(stamp_ns)))
         if self.publish_ground_truth or self.recorder is not None:
             truth = self.sim.ground_truth()

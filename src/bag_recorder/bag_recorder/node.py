@@ -5,7 +5,8 @@ Its own process, never in the 2 ms chain: each topic is subscribed as its CDR by
 deserialised) with its publishers' reliability and durability and a deep queue (RECORD_DEPTH), and
 written from this node's executor. Topics are looked up every ``discovery_period`` seconds, so a
 node that starts later is recorded from then on. Messages are stamped with their receive time on
-this node's clock (sim time with ``use_sim_time``). Ctrl-C / SIGTERM close the bag (index and
+this node's clock (sim time with ``use_sim_time``: in steps of the bridge's ``clock_period``, 10 ms,
+so 500 Hz topics are best plotted by their header stamps). Ctrl-C / SIGTERM close the bag (index and
 metadata.yaml) and print what was written per topic; a kill -9 leaves every chunk written so far
 readable (bag.read_mcap_messages). /diagnostics at 1 Hz: the messages written per topic.
 Parameters: ``output`` (the bag folder, which must not exist;
