@@ -71,10 +71,12 @@ def test_lockstep_one_sensor_set_per_command(bridge_graph):
         assert len(joint_stamps & other) >= 0.9 * len(joint_stamps), key
     clock_period_ns = round(bridge.get_parameter("clock_period").value * 1e9)
     assert clock_period_ns == 5 * STEP_NS
-    clock = {ns_from_stamp(m.clock) for m in seen["clock"]}
-    assert all(t % clock_period_ns == 0 for t in clock), sorted(t for t in clock if t % clock_period_ns)
+    # The first clock goes out at the first step that has a subscriber, wherever in its period
+    # that falls; every later one at the first step of a period.
+    clock = sorted({ns_from_stamp(m.clock) for m in seen["clock"]})[1:]
+    assert all(t % clock_period_ns == 0 for t in clock), [t for t in clock if t % clock_period_ns]
     on_period = {t for t in joint_stamps if t % clock_period_ns == 0}
-    assert len(on_period & clock) >= 0.9 * len(on_period)
+    assert len(on_period & set(clock)) >= 0.9 * len(on_period)
     msg = seen["joints"][-1]
     assert list(msg.name) == list(bridge.sim.robot.joint_names)
     assert len(msg.position) == len(msg.velocity) == len(msg.effort) == 12
