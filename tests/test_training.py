@@ -272,3 +272,17 @@ def test_backends_agree_for_the_same_seed():
         on_ray.close()
     finally:
         ray.shutdown()
+
+
+def test_default_output_folders_started_in_the_same_second_are_distinct(tmp_path, monkeypatch):
+    # eval_policy, sweep_gaits and train_es name their default folder by the second they start in;
+    # two started together (e.g. one per core) must not write into one folder.
+    from a1_common import files
+
+    monkeypatch.setattr(files.time, "strftime", lambda fmt: "20261204-170000")
+    first = files.new_timestamped_folder(tmp_path / "eval", "policy")
+    second = files.new_timestamped_folder(tmp_path / "eval", "policy")
+    plain = files.new_timestamped_folder(tmp_path / "sweep")
+    assert first.name == "policy-20261204-170000" and second.name == "policy-20261204-170000-2"
+    assert plain.name == "20261204-170000"
+    assert all(p.is_dir() and not any(p.iterdir()) for p in (first, second, plain))

@@ -1,8 +1,11 @@
-"""Files that must survive a crash at any moment: training checkpoints, policy files, flight records."""
+"""Files that must survive a crash at any moment (training checkpoints, policy files, flight records),
+and output folders that two runs never share."""
 
 from __future__ import annotations
 
+import itertools
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -22,3 +25,19 @@ def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def new_timestamped_folder(parent: Path, prefix: str = "") -> Path:
+    """Create and return a new, empty ``parent/<prefix>-<YYYYmmdd-HHMMSS>`` (``-2``, ``-3``... when
+    taken): a tool's default output folder, so that two runs started in the same second never write
+    into one folder."""
+    parent.mkdir(parents=True, exist_ok=True)
+    name = f"{prefix}-{time.strftime('%Y%m%d-%H%M%S')}" if prefix else time.strftime("%Y%m%d-%H%M%S")
+    for n in itertools.count(1):
+        path = parent / (name if n == 1 else f"{name}-{n}")
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        return path
+    raise AssertionError("unreachable")

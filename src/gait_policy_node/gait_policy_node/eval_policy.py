@@ -21,12 +21,12 @@ import csv
 import dataclasses
 import json
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 from a1_common.config import ConfigError
+from a1_common.files import new_timestamped_folder
 from a1_sim_bridge.worlds import WORLD_NAMES
 from convex_mpc_node.gait import GaitParams
 
@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"eval_policy: {exc}", file=sys.stderr)
         return 2
     name = Path(args.policy).stem
-    out = args.out or Path("log") / "eval" / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    out = args.out or new_timestamped_folder(Path("log") / "eval", name)
     out.mkdir(parents=True, exist_ok=True)
     env = config.env
     print(f"eval_policy: {args.policy} on {env.world} ground, {env.profile.kind} profile, "

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 from a1_common.config import ConfigError
+from a1_common.files import new_timestamped_folder
 from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
 
 from gait_policy_node.env import GaitEnv, make_profile, step_reward
@@ -285,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"sweep_gaits: {exc}", file=sys.stderr)
         return 2
-    out = args.out or Path("log") / "sweep" / time.strftime("%Y%m%d-%H%M%S")
+    out = args.out or new_timestamped_folder(Path("log") / "sweep")
     out.mkdir(parents=True, exist_ok=True)
     best = best_per_speed(results)
     write_csv(out / "sweep.csv", results)

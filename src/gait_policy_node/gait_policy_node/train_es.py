@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 from a1_common.config import ConfigError
+from a1_common.files import new_timestamped_folder
 from tqdm import tqdm
 
 from gait_policy_node.es import Optimizer, make_optimizer, restore
@@ -274,13 +275,15 @@ def prepare_run(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
         config = load_train_config(run_dir / "config.yaml", overrides)
         return config, run_dir
     config = load_train_config(args.config, overrides)
-    run_dir = args.run_dir or Path("runs") / f"{config.trainer.algorithm}-{time.strftime('%Y%m%d-%H%M%S')}"
-    if (run_dir / "checkpoint.npz").exists():
+    run_dir = args.run_dir
+    if run_dir is not None and (run_dir / "checkpoint.npz").exists():
         raise ConfigError(f"{run_dir} already holds a run; continue it with --resume {run_dir}")
     if args.init_from is not None:  # checked before the run folder exists
         if not policy_file(args.init_from).is_file():
             raise ConfigError(f"--init-from {args.init_from}: no such file")
         _check_initial_policy(args.init_from, config)
+    if run_dir is None:
+        run_dir = new_timestamped_folder(Path("runs"), config.trainer.algorithm)
     run_dir.mkdir(parents=True, exist_ok=True)
     if args.init_from is not None:
         tmp = run_dir / f".{INITIAL_POLICY}.tmp"
