@@ -25,6 +25,7 @@ setup(
             "sweep_gaits = gait_policy_node.sweep_gaits:main",
             "compare_policies = gait_policy_node.compare_policies:main",
             "fit_policy = gait_policy_node.fit_policy:main",
+            "compare_runs = gait_policy_node.compare_runs:main",
         ]
     },
 )
