@@ -23,9 +23,10 @@ from a1_interface.conversions import ns_from_stamp, stamp_from_ns
 from a1_sim_bridge.node import SimBridgeNode
 from convex_mpc_node.gait import GaitParams
 from convex_mpc_node.node import ConvexMpcNode
+from convex_mpc_node.supervisor import load_supervisor_config
 from diagnostic_msgs.msg import DiagnosticArray
 from gait_policy_node.learned_policy import NetworkPolicy, load_policy, save_policy
-from gait_policy_node.policy_node import MAX_DESIRED_VELOCITY, GaitPolicyNode
+from gait_policy_node.policy_node import GaitPolicyNode
 from gait_policy_node.train_config import TrainConfig
 from gait_policy_node.velocity_command import VelocityCommandNode
 from geometry_msgs.msg import Twist
@@ -368,10 +369,12 @@ class TestGaitPolicyNode:
 
 
     def test_gait_policy_node_clamps_the_desired_velocity(self, gait_policy, policy_file):
-        """The documented clamp: /cmd_vel x = 1e300 acts as 5 m/s (the largest the controller accepts),
-        approached at the controller's acceleration, and the policy sees the shaped value."""
+        """The documented clamp: /cmd_vel x = 1e300 acts as the controller's max_forward_speed
+        (config/convex_mpc.yaml), approached at the controller's acceleration, and the policy sees the
+        shaped value."""
         graph, cmd_pub, odom_pub, out = gait_policy
         network, _ = load_policy(policy_file)
+        max_forward = load_supervisor_config().max_forward_speed
         twist = Twist()
         twist.linear.x = 1e300
         odom = _odometry([0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
@@ -379,7 +382,7 @@ class TestGaitPolicyNode:
         def clamped() -> bool:
             cmd_pub.publish(twist)
             odom_pub.publish(odom)
-            return (graph.node.shaper.target[0] == MAX_DESIRED_VELOCITY[0] and graph.node.desired[0] > 0.0
+            return (graph.node.shaper.target[0] == max_forward and graph.node.desired[0] > 0.0
                     and not np.any(graph.node.measured))
 
         assert graph.spin_until(clamped, timeout_s=5.0)
@@ -396,7 +399,7 @@ class TestGaitPolicyNode:
                        and np.allclose(m.phase_offsets, expected.phase_offsets, atol=1e-12) for m in out[-5:])
 
         assert graph.spin_until(last_tick_published, timeout_s=5.0), f"no /gait/params for inputs {inputs[-5:]}"
-        assert 0.0 < inputs[-1] <= MAX_DESIRED_VELOCITY[0]
+        assert 0.0 < inputs[-1] <= max_forward
 
 
     @given(name=st.sampled_from(["policy", "rate", "cmd_vel_stamped"]), value=parameter_values)

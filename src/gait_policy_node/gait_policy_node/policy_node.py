@@ -4,21 +4,20 @@ The policy comes from the ``policy`` parameter (see policy.make_policy): ``learn
 policy shipped with this package, the default), a learned policy file (.npz from train_es), the
 hand-tuned gaits scheduled by speed (``scheduled``), or one hand-tuned gait by name.
 The desired velocity the policy sees is /cmd_vel as the controller tracks it (a1_common.command's
-CommandShaper with the controller's ``max_acceleration`` and ``cmd_vel_timeout``, read from
-config/convex_mpc.yaml): the policy was trained on commands that change at most at the paper's
-1 m/s^2, so a step in /cmd_vel must not ask it for the gait of a speed the robot is not at yet. The
-measured velocity is /odom's twist (base_link frame) turned into the yaw-aligned frame, the frame
-the policy was trained in.
+CommandShaper with the controller's ``max_acceleration``, ``cmd_vel_timeout`` and /cmd_vel clamp
+``max_forward_speed`` / ``max_lateral_speed``, read from config/convex_mpc.yaml): the policy was
+trained on commands that change at most at the paper's 1 m/s^2, so a step in /cmd_vel must not ask
+it for the gait of a speed the robot is not at yet. The measured velocity is /odom's twist
+(base_link frame) turned into the yaw-aligned frame, the frame the policy was trained in.
 Runs on sim time under a sim bridge (``use_sim_time``), like the rest of the graph.
 
 Bad input: /cmd_vel and /odom with NaN/inf are ignored (the last good value stays); finite values
-are clamped (documented clamp) to what the controller can ever be asked for, |v_x| <= 5 m/s and
-|v_y| <= 3 m/s desired (the largest max_forward_speed / max_lateral_speed the controller accepts),
-and |v| <= 10 m/s per axis measured (the estimator flags faster estimates as diverging), so
-that no input can drive a policy outside the range it was made for. Gait parameters are
-validated before they are published; an invalid output is dropped and counted (the controller then
-falls back to its hand-tuned gaits). /diagnostics at 1 Hz: the policy, its inputs and last gait, the
-counts. Parameters are read at start-up only: runtime changes are refused.
+are clamped (documented clamp): the desired velocity as the controller clamps /cmd_vel (3 m/s
+forward, 1 m/s sideways by default), the measured one to |v| <= 10 m/s per axis (the estimator
+flags faster estimates as diverging), so that no input can drive a policy outside the range it was
+made for. Gait parameters are validated before they are published; an invalid output is dropped
+and counted (the controller then falls back to its hand-tuned gaits). /diagnostics at 1 Hz: the
+policy, its inputs and last gait, the counts. Parameters are read at start-up only: runtime changes are refused.
 """
 
 from __future__ import annotations
@@ -57,7 +56,6 @@ class NodeParameters:
 
 
 PARAMETERS = NodeParameters()
-MAX_DESIRED_VELOCITY = np.array([5.0, 3.0])  # [m/s] x, y: the controller's largest speed limits
 MAX_MEASURED_VELOCITY = 10.0  # [m/s] per axis
 
 
@@ -70,6 +68,8 @@ class GaitPolicyNode(Node):
             self.policy = make_policy(params["policy"])
             supervisor = load_supervisor_config()
             self.shaper = CommandShaper(supervisor.max_acceleration, supervisor.cmd_vel_timeout)
+            # [m/s] x, y: the controller's /cmd_vel clamp, so the policy sees the speed the robot is sent to
+            self.max_desired = np.array([supervisor.max_forward_speed, supervisor.max_lateral_speed])
         constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.desired = np.zeros(2)  # [m/s] x, y as the controller tracks them (the policy's input)
         self._last_tick: float | None = None  # [s] node clock
@@ -93,7 +93,7 @@ class GaitPolicyNode(Node):
     def _on_cmd(self, twist: Twist) -> None:
         values = np.array([twist.linear.x, twist.linear.y], dtype=float)
         if np.all(np.isfinite(values)):
-            target = np.clip(values, -MAX_DESIRED_VELOCITY, MAX_DESIRED_VELOCITY)
+            target = np.clip(values, -self.max_desired, self.max_desired)
             self.shaper.set_target(np.array([target[0], target[1], 0.0]), self._now())
         else:
             self.ignored_inputs += 1
