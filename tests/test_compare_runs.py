@@ -15,7 +15,8 @@ HEADER = "iteration,wall_time_s,episodes,policy_steps,mean_return,std_return,max
 
 def make_run(folder: Path, evals: list[str], profile: str = "steps") -> Path:
     folder.mkdir(parents=True)
-    rows = [f"{i},{100.0 * i},33,1000,900,10,1000,800,{10 - i},0.1,{e},0.01,0.8,0,2\n" for i, e in enumerate(evals, 1)]
+    rows = [f"{i},{100.0 * i},33,1000,900,10,1000,800,{10 - i},0.1,{e},0.01,0.8,0,2\n"
+            for i, e in enumerate(evals, 1)]
     (folder / "log.csv").write_text(HEADER + "".join(rows))
     (folder / "config.yaml").write_text(yaml.safe_dump({"env": {"profile": {"kind": profile}}, "reward": {"c": 3}}))
     return folder
@@ -44,6 +45,32 @@ def test_main_writes_the_plot_and_refuses_bad_folders_by_name(tmp_path, capsys):
     assert out.stat().st_size > 1000 and "1020.00" in capsys.readouterr().out
     assert main([str(tmp_path / "missing")]) == 2
     assert "no log.csv" in capsys.readouterr().err
-    bad = make_run(tmp_path / "bad", ["1000", "lots"])
-    with pytest.raises(ConfigError, match=r"line 3: eval_return must be a number, got 'lots'"):
-        read_run_log(bad)
+    with pytest.raises(SystemExit):
+        main([str(a), "--out", str(tmp_path / "curves.pdf")])  # PNG only
+    assert "--out must name a .png file" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda text: text.replace(",1050,", ",lots,"), r"line 3: eval_return must be a number, got 'lots'"),
+    (lambda text: text.replace("\n2,", "\n,"), r"line 3: iteration must be a whole number >= 0, got ''"),
+    (lambda text: text.replace("\n2,", "\ninf,"), r"line 3: iteration must be a whole number >= 0, got 'inf'"),
+    (lambda text: text.rstrip("\n") + ",9\n", r"line 3: 16 fields, the header has 15"),
+    (lambda text: text.rstrip("\n").rsplit(",", 1)[0] + "\n", r"line 3: 14 fields, the header has 15"),
+])
+def test_a_damaged_log_is_refused_naming_line_and_column(tmp_path, edit, message):
+    run = make_run(tmp_path / "run", ["1000", "1050"])
+    (run / "log.csv").write_text(edit((run / "log.csv").read_text()))
+    with pytest.raises(ConfigError, match=message):
+        read_run_log(run)
+
+
+def test_runs_of_one_name_are_told_apart_and_missing_configs_said(tmp_path, capsys):
+    a = make_run(tmp_path / "x" / "run", ["1000"])
+    b = make_run(tmp_path / "y" / "run", ["1010"])
+    (b / "config.yaml").unlink()
+    assert main([str(a), str(b), "--out", str(tmp_path / "c.png")]) == 0
+    out = capsys.readouterr().out
+    assert str(a) in out and str(b) in out and f"no config.yaml in {b}" in out
+    (a / "config.yaml").write_text("env: [unclosed")
+    assert main([str(a), str(b), "--out", str(tmp_path / "c.png")]) == 2
+    assert "not valid YAML" in capsys.readouterr().err

@@ -369,20 +369,23 @@ class TestGaitPolicyNode:
 
 
     def test_gait_policy_node_clamps_the_desired_velocity(self, gait_policy, policy_file):
-        """The documented clamp: /cmd_vel x = 1e300 acts as the controller's max_forward_speed
-        (config/convex_mpc.yaml), approached at the controller's acceleration, and the policy sees the
-        shaped value."""
+        """The documented clamp: /cmd_vel x = 1e300, y = -1e300 act as the controller's
+        max_forward_speed and -max_lateral_speed (config/convex_mpc.yaml), approached at the
+        controller's acceleration, and the policy sees the shaped value."""
         graph, cmd_pub, odom_pub, out = gait_policy
         network, _ = load_policy(policy_file)
-        max_forward = load_supervisor_config().max_forward_speed
+        limits = load_supervisor_config()
+        max_forward = limits.max_forward_speed
         twist = Twist()
         twist.linear.x = 1e300
+        twist.linear.y = -1e300
         odom = _odometry([0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
 
         def clamped() -> bool:
             cmd_pub.publish(twist)
             odom_pub.publish(odom)
-            return (graph.node.shaper.target[0] == max_forward and graph.node.desired[0] > 0.0
+            return (graph.node.shaper.target[0] == max_forward
+                    and graph.node.shaper.target[1] == -limits.max_lateral_speed and graph.node.desired[0] > 0.0
                     and not np.any(graph.node.measured))
 
         assert graph.spin_until(clamped, timeout_s=5.0)

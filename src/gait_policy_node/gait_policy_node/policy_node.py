@@ -5,7 +5,7 @@ policy shipped with this package, the default), a learned policy file (.npz from
 hand-tuned gaits scheduled by speed (``scheduled``), or one hand-tuned gait by name.
 The desired velocity the policy sees is /cmd_vel as the controller tracks it (a1_common.command's
 CommandShaper with the controller's ``max_acceleration``, ``cmd_vel_timeout`` and /cmd_vel clamp
-``max_forward_speed`` / ``max_lateral_speed``, read from config/convex_mpc.yaml): the policy was
+``max_forward_speed`` / ``max_lateral_speed``, as set in config/convex_mpc.yaml): the policy was
 trained on commands that change at most at the paper's 1 m/s^2, so a step in /cmd_vel must not ask
 it for the gait of a speed the robot is not at yet. The measured velocity is /odom's twist
 (base_link frame) turned into the yaw-aligned frame, the frame the policy was trained in.
