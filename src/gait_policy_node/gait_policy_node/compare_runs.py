@@ -93,10 +93,11 @@ def summary_row(log: RunLog) -> dict[str, object]:
 
 def format_table(rows: list[dict[str, object]]) -> str:
     """summary_row's rows as a fixed-width table, one line per run."""
-    lines = [f"{'run':32s} {'iter':>5s} {'wall h':>7s} {'workers':>7s} {'best eval':>10s} {'at':>4s} "
+    width = max([len("run")] + [len(str(r["run"])) for r in rows])
+    lines = [f"{'run':{width}s} {'iter':>5s} {'wall h':>7s} {'workers':>7s} {'best eval':>10s} {'at':>4s} "
              f"{'last eval':>10s} {'sigma':>7s} {'falls':>5s}"]
     for r in rows:
-        lines.append(f"{r['run']:32s} {r['iterations']:5d} {r['wall_time_h']:7.2f} {r['workers']:>7s} "
+        lines.append(f"{r['run']:{width}s} {r['iterations']:5d} {r['wall_time_h']:7.2f} {r['workers']:>7s} "
                      f"{r['best_eval']:10.2f} {r['best_at']:4.0f} {r['last_eval']:10.2f} {r['step_size']:7.4f} "
                      f"{r['falls_last']:5d}")
     return "\n".join(lines)
