@@ -1,13 +1,16 @@
-"""The in-process closed loop (sim, estimator, controller) replays a committed reference bit for bit.
+"""The in-process closed loop (sim, estimator, controller) replays a committed reference.
 
 Why: a trained gait policy is only valid on the closed loop it was trained on (docs/learning.md);
-a refactor, an optimisation or a dependency bump that changes a single bit of any motor command
-changes what the policy sees. Every field of every command of 1.5 s of a trot to 1 m/s and of a
-fly trot is compared with tests/data/closed_loop_reference.npz. A change that is meant to change
+a refactor, an optimisation or a dependency bump that changes the motor commands changes what the
+policy sees. Every field of every command of 1.5 s of a trot to 1 m/s and of a fly trot is compared
+with tests/data/closed_loop_reference.npz, to within TOLERANCE. A change that is meant to change
 the closed loop regenerates the file (``python tests/test_closed_loop_reference.py --update``) and
-says so: the learned-policy run must then be restarted or its policy re-evaluated. (Bit for bit
-holds for the same wheels on the same kind of CPU; another CPU may round BLAS products otherwise,
-which a failure with no code change points to.)
+says so: the learned-policy run must then be restarted or its policy re-evaluated.
+
+Why not bit for bit: the same wheels round differently on another kind of CPU (measured
+2026-12-04: an AVX-512 AMD EPYC differs from the machine that wrote the reference in 20 % of the
+fields, by at most 2.3e-9, with no code change, and the difference does not grow over the 750
+steps). Any change to gains, models or the solver moves the commands by far more than TOLERANCE.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ REFERENCE = Path(__file__).with_name("data") / "closed_loop_reference.npz"
 CASES = {"slow_trot": 1.0, "fly_trot": 2.5}  # gait -> ramp target [m/s] at 1 m/s^2
 STEPS = 750  # 1.5 s of 2 ms control steps
 FIELDS = ("position", "velocity", "kp", "kd", "torque")
+TOLERANCE = 1e-6  # [rad, rad/s, N m/rad, N m s/rad, N m]: 400 times the CPU-to-CPU rounding seen
 
 
 def record(gait: str, target: float) -> np.ndarray:
@@ -47,9 +51,9 @@ def test_every_motor_command_matches_the_committed_reference():
     for gait, target in CASES.items():
         now = record(gait, target)
         expected = reference[gait]
-        differs = np.flatnonzero(np.any(now != expected, axis=1))
+        differs = np.flatnonzero(np.any(np.abs(now - expected) > TOLERANCE, axis=1))
         assert not differs.size, (
-            f"{gait}: the closed loop's motor commands changed, first at step {differs[0]} "
+            f"{gait}: the closed loop's motor commands changed by more than {TOLERANCE:g}, first at step {differs[0]} "
             f"(max difference {np.max(np.abs(now - expected)):.3g}); a trained policy may no longer be valid. "
             "If the change is meant, regenerate with: python tests/test_closed_loop_reference.py --update")
 
