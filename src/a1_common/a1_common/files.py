@@ -27,6 +27,18 @@ def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
         tmp.unlink(missing_ok=True)
 
 
+def save_png_atomically(fig, path: Path, dpi: int = 100) -> None:
+    """``fig.savefig`` (a matplotlib Figure) as PNG into ``path``, so that a crash or a full disk
+    leaves the old plot or the new one, never half a file; closes nothing."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}{TEMPORARY_MARK}{os.getpid()}")
+    try:
+        fig.savefig(tmp, dpi=dpi, format="png")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def new_timestamped_folder(parent: Path, prefix: str = "") -> Path:
     """Create and return a new, empty ``parent/<prefix>-<YYYYmmdd-HHMMSS>`` (``-2``, ``-3``... when
     taken): a tool's default output folder, so that two runs started in the same second never write

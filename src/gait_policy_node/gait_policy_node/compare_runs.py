@@ -22,7 +22,7 @@ from pathlib import Path
 
 import yaml
 from a1_common.config import ConfigError
-from a1_common.files import new_timestamped_folder
+from a1_common.files import new_timestamped_folder, save_png_atomically
 
 # log.csv columns this tool reads (train_es.LOG_COLUMNS; "workers" is missing from older runs);
 # the whole-number ones must be present on every row
@@ -171,14 +171,10 @@ def plot_runs(logs: list[RunLog], path: Path) -> None:
         axes[1].legend(loc="lower right")
     fig.suptitle("train_es runs compared")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
     try:
-        fig.savefig(tmp, dpi=100, format="png")
-        tmp.replace(path)
+        save_png_atomically(fig, path)
     finally:
         plt.close(fig)
-        tmp.unlink(missing_ok=True)
 
 
 def main(argv: list[str] | None = None) -> int:

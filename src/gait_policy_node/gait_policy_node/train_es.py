@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 from a1_common.config import ConfigError
-from a1_common.files import new_timestamped_folder
+from a1_common.files import new_timestamped_folder, save_png_atomically
 from tqdm import tqdm
 
 from gait_policy_node.es import Optimizer, make_optimizer, restore
@@ -227,10 +227,10 @@ def plot_learning_curve(rows: list[list[float]], path: Path, algorithm: str) -> 
     axes[1].legend(loc="lower right")
     fig.suptitle(f"{algorithm}: learning curve")
     fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    tmp.replace(path)
+    try:
+        save_png_atomically(fig, path)
+    finally:
+        plt.close(fig)
 
 
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
