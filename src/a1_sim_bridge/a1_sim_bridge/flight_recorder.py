@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 from a1_common.config import ConfigError, require_range
-from a1_common.files import write_npz_atomically
+from a1_common.files import save_png_atomically, write_npz_atomically
 
 # Recorded per step: name -> width. The names carry their units.
 FIELDS = {
@@ -136,7 +136,7 @@ def plot(data: dict[str, np.ndarray], out: Path, title: str = "") -> Path:
     fig.suptitle(title)
     fig.tight_layout()
     out = Path(out)
-    fig.savefig(out, dpi=90)
+    save_png_atomically(fig, out, dpi=90)
     plt.close(fig)
     return out
 

@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from a1_common.files import save_png_atomically
 
 LEGS = ("FR", "FL", "RR", "RL")
 # Commanded forward speed bands [m/s] of the summaries; the last holds the top of the paper's ramp.
@@ -122,7 +123,6 @@ def plot_gait_diagram(path: str | Path, data: dict[str, np.ndarray], title: str)
     axes[3].set_xlabel("time [s]")
     fig.tight_layout()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    save_png_atomically(fig, path, dpi=110)
     plt.close(fig)
     return path

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 from a1_common.config import ConfigError
-from a1_common.files import new_timestamped_folder
+from a1_common.files import new_timestamped_folder, save_png_atomically
 from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
 
 from gait_policy_node.env import GaitEnv, make_profile, step_reward
@@ -211,7 +211,7 @@ def _plot_curves(curves: dict[str, list[tuple[float, float]]], xlabel: str, titl
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_png_atomically(fig, path, dpi=110)
     plt.close(fig)
 
 
