@@ -81,6 +81,12 @@ def test_require_range_returns_a_value_inside_or_names_field_and_range(fuzz_case
     assert (v > low if low_open else v >= low) and (v < high if high_open else v <= high)
 
 
+@pytest.mark.parametrize("value", [True, False, "0.5", b"0.5"])
+def test_require_range_takes_no_bool_or_string_for_a_number(value):
+    with pytest.raises(ConfigError, match=r"the_field must be a number in \[0.0, 1.0\]"):
+        require_range("the_field", value, 0.0, 1.0)
+
+
 @given(value=values, default=st.sampled_from([True, 1.5, 3, "text", [1.0, 2.0]]))
 def test_coerce_parameter_gives_the_default_type_or_names_the_parameter(fuzz_cases, value, default):
     try:

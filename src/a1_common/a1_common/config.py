@@ -180,9 +180,12 @@ def config_dir() -> Path:
 
 def require_range(name: str, value: float, low: float, high: float, *, low_open: bool = False,
                   high_open: bool = False) -> float:
-    """Return ``value`` as float if inside the interval, else raise naming the field and range."""
+    """Return ``value`` as float if inside the interval, else raise naming the field and range. A bool
+    or a string is not a number here (``true`` or ``"0.5"`` in a YAML file is a typo, not 1.0 or 0.5)."""
     _record(name, Constraint(low, high, low_open, high_open))
     try:
+        if isinstance(value, (bool, str, bytes)):
+            raise TypeError
         v = float(value)
     except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond any float
         raise ConfigError(f"{name} must be a number in {'(' if low_open else '['}{low}, {high}"
@@ -194,7 +197,6 @@ def require_range(name: str, value: float, low: float, high: float, *, low_open:
         hb = ")" if high_open else "]"
         raise ConfigError(f"{name} must be in {lb}{low}, {high}{hb}, got {_short(value)}")
     return v
-
 
 
 def require_integer(name: str, value: Any, low: int, high: int) -> int:
