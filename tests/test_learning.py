@@ -246,6 +246,9 @@ def test_gait_classes_of_the_hand_tuned_and_textbook_gaits():
     assert classify_gait(0.4, (0, 0, pi, pi)) == "bound"
     assert classify_gait(0.4, (0, 0.1, 6.2, 0.05)) == "pronk"
     assert classify_gait(0.4, (0, pi, 0.1, 2.0)) == "other"  # FR and RR in phase, not a two-beat gait
+    walk_offsets = gaits["walk"].phase_offsets
+    assert classify_gait(0.5, walk_offsets) == "walk"
+    assert classify_gait(0.61, walk_offsets) == "4-beat run"  # four beats, but under two feet down on average
     # The reference checkpoint's offsets at 0.5 and 2.5 m/s (reference facts, section 7.3).
     assert classify_gait(0.197, (0, 2.948, -2.312 % (2 * pi), 0.475)) == "walk"
     assert classify_gait(0.622, (0, 3.109, -2.942 % (2 * pi), 0.080)) == "fly trot"

@@ -28,14 +28,18 @@ def _circular_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def classify_gait(swing_ratio: float, offsets: np.ndarray) -> str:
-    """walk (four-beat: no two legs in phase) / trot / fly trot (trot with p_swing > 0.5) / pace /
-    bound / pronk / other, from the phase offsets of FR, FL, RR, RL and the swing ratio."""
+    """walk (four-beat: no two legs in phase; p_swing <= 0.5, each foot down at least half the cycle,
+    as in the reference's walk at p_swing 0.2) / 4-beat run (four-beat with p_swing > 0.5) / trot /
+    fly trot (trot with p_swing > 0.5) / pace / bound / pronk / other, from the phase offsets of FR,
+    FL, RR, RL and the swing ratio."""
     offsets = np.asarray(offsets, dtype=float)
     for name, pattern in TWO_BEAT.items():
         if np.all(_circular_distance(offsets[1:], pattern) < OFFSET_TOLERANCE):
             return "fly trot" if name == "trot" and swing_ratio > 0.5 else name
     pairwise = [_circular_distance(offsets[i], offsets[j]) for i in range(4) for j in range(i + 1, 4)]
-    return "walk" if min(pairwise) >= OFFSET_TOLERANCE else "other"
+    if min(pairwise) < OFFSET_TOLERANCE:
+        return "other"
+    return "4-beat run" if swing_ratio > 0.5 else "walk"
 
 
 def circular_mean(angles: np.ndarray, axis: int = 0) -> np.ndarray:
@@ -68,13 +72,13 @@ def summarise_bands(data: dict[str, np.ndarray], mass: float, gravity: float = 9
 
 
 def format_band_table(rows: list[dict]) -> str:
-    lines = [f"{'band [m/s]':<11}{'cmd':>6}{'actual':>8}{'err %':>7}  {'gait':<9}{'f Hz':>6}{'p_sw':>6}"
+    lines = [f"{'band [m/s]':<11}{'cmd':>6}{'actual':>8}{'err %':>7}  {'gait':<11}{'f Hz':>6}{'p_sw':>6}"
              f"{'offsets FL/RR/RL deg':>22}{'power W':>9}{'CoT':>6}"]
     for r in rows:
         lo, hi = r["band"]
         offs = "/".join(f"{math.degrees(o):.0f}" for o in r["phase_offsets"][1:])
         lines.append(f"{lo:>4.1f}-{hi:<6.1f}{r['desired_speed']:>6.2f}{r['speed']:>8.2f}{100 * r['speed_error']:>7.1f}"
-                     f"  {r['gait']:<9}{r['frequency']:>6.2f}{r['swing_ratio']:>6.2f}{offs:>22}{r['power']:>9.1f}"
+                     f"  {r['gait']:<11}{r['frequency']:>6.2f}{r['swing_ratio']:>6.2f}{offs:>22}{r['power']:>9.1f}"
                      f"{r['cost_of_transport']:>6.2f}")
     return "\n".join(lines)
 
