@@ -6,20 +6,23 @@ from __future__ import annotations
 import itertools
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
-TEMPORARY_MARK = ".tmp-"  # write_npz_atomically's temporary file: .<name>.tmp-<pid> beside <name>
+TEMPORARY_MARK = ".tmp-"  # the atomic writers' temporary file: .<name>.tmp-<pid> beside <name>
 
 
-def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """np.savez into ``path`` so that a crash at any moment leaves the old file or the new one."""
+def _write_atomically(path: Path, write: Callable[[BinaryIO], None]) -> None:
+    """``write`` into a temporary file beside ``path``, flushed to disk, then renamed over ``path``:
+    a crash or a full disk at any moment leaves the old file or the new one, never half of one."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}{TEMPORARY_MARK}{os.getpid()}")
     try:
         with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
+            write(fh)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
@@ -27,16 +30,15 @@ def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
         tmp.unlink(missing_ok=True)
 
 
+def write_npz_atomically(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """np.savez into ``path`` so that a crash at any moment leaves the old file or the new one."""
+    _write_atomically(path, lambda fh: np.savez(fh, **arrays))
+
+
 def save_png_atomically(fig, path: Path, dpi: int = 100) -> None:
     """``fig.savefig`` (a matplotlib Figure) as PNG into ``path``, so that a crash or a full disk
     leaves the old plot or the new one, never half a file; closes nothing."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}{TEMPORARY_MARK}{os.getpid()}")
-    try:
-        fig.savefig(tmp, dpi=dpi, format="png")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    _write_atomically(path, lambda fh: fig.savefig(fh, dpi=dpi, format="png"))
 
 
 def new_timestamped_folder(parent: Path, prefix: str = "") -> Path:

@@ -21,6 +21,9 @@ SPEED_BANDS = ((0.0, 0.5), (0.5, 1.0), (1.0, 1.5), (1.5, 2.0), (2.0, 2.5), (2.5,
 TWO_BEAT = {"trot": (math.pi, math.pi, 0.0), "pace": (math.pi, 0.0, math.pi), "bound": (0.0, math.pi, math.pi),
             "pronk": (0.0, 0.0, 0.0)}
 OFFSET_TOLERANCE = 0.35  # [rad], about 20 degrees
+# Above this swing ratio each foot is in the air more than half the cycle: a trot becomes a flying
+# trot and a four-beat walk a 4-beat run.
+FLIGHT_SWING_RATIO = 0.5
 
 
 def _circular_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -35,11 +38,11 @@ def classify_gait(swing_ratio: float, offsets: np.ndarray) -> str:
     offsets = np.asarray(offsets, dtype=float)
     for name, pattern in TWO_BEAT.items():
         if np.all(_circular_distance(offsets[1:], pattern) < OFFSET_TOLERANCE):
-            return "fly trot" if name == "trot" and swing_ratio > 0.5 else name
+            return "fly trot" if name == "trot" and swing_ratio > FLIGHT_SWING_RATIO else name
     pairwise = [_circular_distance(offsets[i], offsets[j]) for i in range(4) for j in range(i + 1, 4)]
     if min(pairwise) < OFFSET_TOLERANCE:
         return "other"
-    return "4-beat run" if swing_ratio > 0.5 else "walk"
+    return "4-beat run" if swing_ratio > FLIGHT_SWING_RATIO else "walk"
 
 
 def circular_mean(angles: np.ndarray, axis: int = 0) -> np.ndarray:
