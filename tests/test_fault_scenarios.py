@@ -226,7 +226,7 @@ def test_realtime_20ms_command_latency_stays_up_or_goes_to_a_safe_state(scenario
     settings' margin (benchmarks/delay_margin.py, docs/reliability.md). Pass: never a runaway.
     Every command finite; the robot stays up, or, once it has fallen, the controller commands
     damping (the A1's safe state) within 0.5 s and the robot lies still (mean speed under 0.2 m/s
-    over the last 0.5 s)."""
+    over the last 0.5 s, at least 1.0 s after the fall: a late fall is watched until then)."""
     make, report = scenario
     name = "motor_command_latency_20ms"
     graph, probe, executor = make(relay_faults(name, "realtime"))
@@ -235,6 +235,9 @@ def test_realtime_20ms_command_latency_stays_up_or_goes_to_a_safe_state(scenario
     run_until(executor, probe, graph, end)
     lowest = probe.lowest(1.0)
     fell_at = next((t for t, _, z in probe.truth if t >= 1.0 and z < FELL_BELOW), None)
+    if fell_at is not None and fell_at + 1.5 > end:
+        end = fell_at + 1.5
+        run_until(executor, probe, graph, end)
     damped_at = None
     if fell_at is not None:
         damped_at = next((t for t, mode, _, _ in probe.commands
@@ -250,7 +253,7 @@ def test_realtime_20ms_command_latency_stays_up_or_goes_to_a_safe_state(scenario
     assert all(finite for _, _, finite, _ in probe.commands), "a non-finite /motor_command was sent"
     if fell_at is not None:
         assert damped_at is not None and damped_at - fell_at <= 0.5, "fell and was not damped"
-        assert settled < 0.2, f"still moving at {settled:.2f} m/s after the fall"
+        assert settled < 0.2, f"still moving at {settled:.2f} m/s at {end:.2f} s, fell at {fell_at:.2f} s"
     else:
         assert lowest > FELL_BELOW
 
