@@ -121,11 +121,12 @@ def test_fit_policy_acts_as_the_lag_variant_away_from_the_switch_and_loads_as_a_
 
 
 @pytest.mark.parametrize("saturated", [False, True])
-def test_encode_action_is_decode_actions_inverse_within_its_limit(saturated):
+@pytest.mark.parametrize("timing_prior", [(), (1.5, 0.3)])
+def test_encode_action_is_decode_actions_inverse_within_its_limit(saturated, timing_prior):
     from gait_policy_node.learned_policy import decode_action, encode_action
     from gait_policy_node.train_config import ActionConfig
 
-    cfg = ActionConfig()
+    cfg = ActionConfig(timing_prior=timing_prior).validated()
     rng = np.random.default_rng(1)
     for _ in range(200):
         like = rng.choice([-0.999, 0.999], 8) if saturated else rng.uniform(-0.5, 0.5, 8)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import pickle
+import re
 
 import numpy as np
 import pytest
@@ -74,6 +75,31 @@ def test_zero_output_is_a_trot_with_the_prior_and_a_pronk_without():
     np.testing.assert_allclose(trot.phase_offsets, (0, math.pi, math.pi, 0), atol=1e-12)
     pronk = decode_action(np.zeros(8), ActionConfig(offset_prior_weight=0.0))
     np.testing.assert_allclose(pronk.phase_offsets, (0, 0, 0, 0))
+
+
+def test_timing_prior_is_the_zero_output_and_the_ranges_stay_reachable(tmp_path):
+    walk = ActionConfig(offset_prior=(math.pi, 0.75 * math.pi, 1.75 * math.pi), timing_prior=(1.5, 0.3)).validated()
+    zero = decode_action(np.zeros(8), walk)
+    assert (zero.stepping_frequency, zero.swing_ratio) == pytest.approx((1.5, 0.3))
+    assert classify_gait(zero.swing_ratio, np.array(zero.phase_offsets)) == "walk"
+    lo, hi = decode_action(-np.ones(8), walk), decode_action(np.ones(8), walk)
+    assert (lo.stepping_frequency, lo.swing_ratio) == pytest.approx((0.5, 0.05))
+    assert (hi.stepping_frequency, hi.swing_ratio) == pytest.approx((4.0, 0.95))
+    grid = [decode_action(np.full(8, a), walk) for a in np.linspace(-1, 1, 41)]
+    assert np.all(np.diff([g.stepping_frequency for g in grid]) > 0)
+    assert np.all(np.diff([g.swing_ratio for g in grid]) > 0)
+    # Without it, a zero output is the ranges' midpoints, as before the prior existed.
+    mid = decode_action(np.zeros(8), ActionConfig())
+    assert (mid.stepping_frequency, mid.swing_ratio) == pytest.approx((2.25, 0.5))
+    for bad, field in (((1.5,), "timing_prior must be"), ((4.5, 0.3), "timing_prior[0]"),
+                       ((1.5, 0.95), "timing_prior[1]")):
+        with pytest.raises(ConfigError, match=re.escape(field)):
+            ActionConfig(timing_prior=bad).validated()
+    # It is part of what gives a policy file its meaning: saved, loaded, and in the hash.
+    config = train_config_from_mapping({"policy": {"action": {"timing_prior": [1.5, 0.3]}}})
+    assert config.policy_hash() != TrainConfig().policy_hash()
+    save_policy(tmp_path / "walk.npz", _random_policy(config), config)
+    assert load_policy(tmp_path / "walk.npz")[1].policy.action.timing_prior == (1.5, 0.3)
 
 
 def test_every_phase_offset_is_reachable_with_the_prior():

@@ -39,13 +39,27 @@ SHIPPED_POLICY = "learned"
 SHIPPED_POLICY_FILE = Path(__file__).with_name("policies") / "learned_gait.npz"
 
 
+def _from_unit(a: float, low: float, high: float, centre: float | None) -> float:
+    """a in [-1, 1] -> [low, high]: affine (centre None: the reference's, kept to the last bit), or
+    linear on each side of a = 0 -> centre."""
+    if centre is None:
+        return low + 0.5 * (a + 1.0) * (high - low)
+    return centre + a * ((high - centre) if a >= 0.0 else (centre - low))
+
+
+def _to_unit(value: float, low: float, high: float, centre: float | None) -> float:
+    """Inverse of _from_unit (unclipped: ``encode_action`` clips)."""
+    if centre is None:
+        return 2.0 * (value - low) / (high - low) - 1.0
+    return (value - centre) / ((high - centre) if value >= centre else (centre - low))
+
+
 def decode_action(a: np.ndarray, cfg: ActionConfig) -> GaitParams:
     """Network outputs a in [-1, 1]^8 -> gait parameters (see ActionConfig)."""
     a = np.clip(np.asarray(a, dtype=float), -1.0, 1.0)
-    f_lo, f_hi = cfg.frequency_range
-    p_lo, p_hi = cfg.swing_ratio_range
-    f = f_lo + 0.5 * (a[0] + 1.0) * (f_hi - f_lo)
-    p = p_lo + 0.5 * (a[7] + 1.0) * (p_hi - p_lo)
+    f_centre, p_centre = cfg.timing_prior or (None, None)
+    f = _from_unit(a[0], *cfg.frequency_range, f_centre)
+    p = _from_unit(a[7], *cfg.swing_ratio_range, p_centre)
     prior = np.asarray(cfg.offset_prior, dtype=float)
     b = cfg.offset_prior_weight
     theta = np.arctan2(b * np.sin(prior) + a[1:4], b * np.cos(prior) + a[4:7]) % TWO_PI
@@ -60,11 +74,10 @@ def encode_action(gait: GaitParams, cfg: ActionConfig, like: np.ndarray, limit: 
     shortened where that length would put an output beyond ``limit`` (always possible: the prior's
     weight is under 1), so the offsets decode exactly."""
     like = np.asarray(like, dtype=float)
-    f_lo, f_hi = cfg.frequency_range
-    p_lo, p_hi = cfg.swing_ratio_range
+    f_centre, p_centre = cfg.timing_prior or (None, None)
     a = np.empty(ACTION_SIZE)
-    a[0] = 2.0 * (gait.stepping_frequency - f_lo) / (f_hi - f_lo) - 1.0
-    a[7] = 2.0 * (gait.swing_ratio - p_lo) / (p_hi - p_lo) - 1.0
+    a[0] = _to_unit(gait.stepping_frequency, *cfg.frequency_range, f_centre)
+    a[7] = _to_unit(gait.swing_ratio, *cfg.swing_ratio_range, p_centre)
     prior = np.asarray(cfg.offset_prior, dtype=float)
     b = cfg.offset_prior_weight
     sin_prior, cos_prior = b * np.sin(prior), b * np.cos(prior)
