@@ -54,17 +54,18 @@ if [ "$RECORD" = 1 ]; then
   rm -rf "$LOGDIR/bag"  # the demo's logs are the last run's
   start_recorder "$LOGDIR" "$LOGDIR/bag" "$CLOCK"
 fi
-# The report starts before the graph: a lockstep graph does not wait for it, and a report that
-# subscribed late missed the start of the ramp. It runs in the foreground of a `wait` below, so
-# Ctrl-C / SIGTERM reach the traps at once, and under a wall-clock cap, so a graph that stalls
-# cannot hang the demo.
+# The graph starts with its sim paused, and the report unpauses it once it has a publisher on every
+# topic it records: a busy graph can take seconds to match a new subscriber (once 4 s of the ramp
+# went unseen). The report runs in the foreground of a `wait` below, so Ctrl-C / SIGTERM reach the
+# traps at once, and under a wall-clock cap, so a graph that stalls cannot hang the demo.
 cap=$(awk "BEGIN{print int($DURATION * 10 + 120)}")
 _node_command gait_policy_node demo_report
 setsid timeout "$cap" "${_GS_CMD[@]}" --ros-args -p use_sim_time:=true \
   -p duration:="$(awk "BEGIN{print $DURATION + 1.5}")" \
-  -p output:="$LOGDIR/gait_diagram.png" &
+  -p output:="$LOGDIR/gait_diagram.png" -p start_sim:=sim_bridge/pause &
 report=$!
 _GS_PIDS+=("$report")  # stopped with the others on exit
+GRAPH_SETS=(--set sim_bridge.start_paused=true)
 start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY" sim "$FORM"
 # The ramp starts after 1.5 s: the controller stands up first (stand_time in config/convex_mpc.yaml).
 start_node gait_policy_node velocity_command "$LOGDIR" --ros-args -p use_sim_time:=true -p profile:=ramp \

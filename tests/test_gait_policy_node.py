@@ -21,6 +21,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from ros_helpers import spin_until
 from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool
 
 from gait_msgs.msg import GaitParams as GaitParamsMsg
 from gait_msgs.msg import GaitState
@@ -134,3 +135,41 @@ def test_demo_report_prints_a_line_per_second_of_sim_time(rclpy_context, capsys,
     assert len(lines) == 3  # at 0, 1 and 2 s
     assert lines[1].split()[:7] == ["t", "1.0", "s", "command", "1.25", "m/s", "actual"]
     assert "trot" in lines[1] and "f 2.00 Hz" in lines[1] and "missed deadlines n/a" in lines[1]
+
+
+@pytest.mark.ros
+def test_demo_report_starts_a_paused_sim_once_every_topic_has_a_publisher(rclpy_context, capsys, tmp_path):
+    """scripts/demo.sh starts the sim paused; the report unpauses it (std_srvs/SetBool false) only
+    when it can hear the whole run, and says so if it joined late anyway."""
+    report = DemoReportNode(context=rclpy_context, parameter_overrides=[
+        Parameter("output", value=str(tmp_path / "gait.png")), Parameter("start_sim", value="sim_bridge/pause")])
+    graph = Node("sim_bridge", context=rclpy_context)
+    calls: list[bool] = []
+
+    def on_pause(request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
+        calls.append(request.data)
+        response.success = True
+        return response
+
+    graph.create_service(SetBool, "~/pause", on_pause)
+    publishers = [graph.create_publisher(GaitState, "/gait/state", CONTROL_QOS),
+                  graph.create_publisher(Odometry, "/sim/ground_truth/odom", CONTROL_QOS),
+                  graph.create_publisher(JointState, "/joint_states", CONTROL_QOS)]
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    for node in (report, graph):
+        executor.add_node(node)
+    try:
+        # /cmd_vel has no publisher yet: 1 s of its wall-clock checks must not start the sim.
+        assert not spin_until(executor, lambda: bool(calls), 1.0)
+        publishers.append(graph.create_publisher(Twist, "/cmd_vel", COMMAND_QOS))
+        assert spin_until(executor, lambda: bool(calls), 10.0) and calls == [False]
+        assert "starting the simulation" in capsys.readouterr().out
+        report.truth, report.joints = Odometry(), JointState(velocity=[0.0] * 12, effort=[0.0] * 12)
+        late = GaitState()
+        late.header.stamp.sec = 3
+        report._on_state(late)
+        assert "first sample at t = 3.0 s of sim time" in capsys.readouterr().out
+    finally:
+        executor.shutdown()
+        report.destroy_node()
+        graph.destroy_node()

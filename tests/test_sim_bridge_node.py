@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from rclpy.parameter import Parameter
 from ros_helpers import spin_until
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
+from std_srvs.srv import SetBool
 
 from a1_sim_bridge import flight_recorder
 from gait_msgs.msg import FootContacts, MotorCommand
@@ -332,3 +334,25 @@ def test_stepped_by_the_executor_thread_one_sensor_set_per_step(rclpy_context, c
         assert max(waits) <= 0.2 + 1e-9  # never past lockstep_timeout
     else:
         assert max(waits) <= 0.004 + 1e-9 and bridge.sim.steps >= 250
+
+
+@pytest.mark.ros
+def test_start_paused_holds_t0_until_pause_false(rclpy_context):
+    """``start_paused`` (the demo's): commands answered, yet no step until ~/pause false; then it runs."""
+    overrides = [Parameter("clock_mode", value="lockstep"), Parameter("lockstep_timeout", value=0.05),
+                 Parameter("settle_time", value=0.1), Parameter("start_paused", value=True)]
+    with bridge_and_commander(rclpy_context, overrides) as (bridge, listener, commander, executor):
+        hold = JointCommand.hold(bridge.sim.robot)
+        pause = listener.create_client(SetBool, "/sim_bridge/pause")
+
+        def commanded(steps: int) -> Callable[[], bool]:
+            def done() -> bool:  # answer the current step, as a controller would
+                commander.publish(motor_command_msg(hold, stamp_from_ns(bridge.sim.steps * STEP_NS)))
+                return bridge.sim.steps >= steps
+            return done
+
+        assert not spin_until(executor, commanded(1), 1.0), "stepped while started paused"
+        assert bridge.watchdog.accepted > 0  # the commands arrived; the pause held the sim
+        future = pause.call_async(SetBool.Request(data=False))
+        assert spin_until(executor, future.done, 10.0) and future.result().message == "running from 0.000000 s"
+        assert spin_until(executor, commanded(25), 20.0)

@@ -101,7 +101,7 @@ start_graph() {  # <logdir> <world> <clock> <policy> [bridge] [form]: a bridge a
   # bridge: sim (default) | hardware (the real A1, realtime) | virtual (hw_bridge + virtual_a1 on loopback)
   # form: separate (default: one process a node) | composed (bridge, estimator, controller in one control_chain)
   local logdir=$1 world=$2 clock=$3 policy=$4 bridge=${5:-sim} form=${6:-separate}
-  local sets=(--set "gait_policy.policy=$policy")
+  local sets=(--set "gait_policy.policy=$policy" ${GRAPH_SETS[@]+"${GRAPH_SETS[@]}"})  # GRAPH_SETS: more --set
   [ "$form" = composed ] && sets+=(--composed)
   case "$bridge" in
     sim) sets+=(--set "sim_bridge.world=$world" --set "sim_bridge.flight_recorder_dir=$logdir") ;;  # a fall: its last 5 s

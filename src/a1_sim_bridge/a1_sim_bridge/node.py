@@ -9,7 +9,9 @@ Publishes at every 2 ms sim step: /joint_states, /imu/data, /foot_contacts and (
 - realtime: paced by the wall clock at 1/time_step (times ``real_time_factor``, 1 by default); the
   latest valid command is applied.
 In both modes the sim holds its start pose (sensors offered again each step, time stopped) until
-the first valid command after start-up or ~/reset.
+the first valid command after start-up or ~/reset. ``start_paused`` starts it paused: after the
+start pose's sensors nothing is stepped or published until ``~/pause`` false (scripts/demo.sh:
+its report unpauses once it has a publisher on every topic it records, so it sees t = 0).
 QoS of the 500 Hz topics: RELIABLE, KEEP_LAST 1, VOLATILE (see docs/architecture.md).
 /diagnostics (1 Hz) counts what the robot sees of its controller: ``uncommanded_steps``, steps
 applied with no command accepted since the step before (a missed 2 ms deadline); ``latency_*_ms``,
@@ -86,6 +88,7 @@ class NodeParameters:
     flight_recorder_dir: str = setting("", "write the last seconds before a fall here as .npz ('': off)")
     flight_recorder_seconds: float = setting(5.0, "seconds the flight recorder keeps [s]")
     fall_height: float = setting(FALL_HEIGHT, "base height under which the robot has fallen [m]")
+    start_paused: bool = setting(False, "hold t = 0 until ~/pause false (lets a watcher subscribe first)")
 
 
 NODE_PARAMETERS = parameter_defaults(NodeParameters())
@@ -148,7 +151,7 @@ class SimBridgeNode(Node):
         self._pending_stamp_ns = -1  # lockstep: stamp of the command received for the current step
         self._late_commands = 0
         self._lockstep_timeouts = 0
-        self._paused = False
+        self._paused = bool(params["start_paused"])
         self._reset_requested = False
         self._running = True
         self._published = 0

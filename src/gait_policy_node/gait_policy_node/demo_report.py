@@ -10,6 +10,7 @@ paper's acceleration figure: contacts per leg over time with speed, frequency an
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,8 +25,10 @@ from convex_mpc_node.energy import motor_power
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool
 
 from a1_interface import contract
 from gait_msgs.msg import GaitState
@@ -43,6 +46,8 @@ class NodeParameters:
     duration: float = setting(20.0, "report after this much sim time [s]")
     output: str = setting("log/demo/gait_diagram.png", "where to write the gait diagram (PNG)")
     mass: float = setting(12.458, "robot mass in the reported cost of transport [kg]")
+    start_sim: str = setting("", "a sim bridge's std_srvs/SetBool pause service (sim_bridge/pause) to call "
+                                 "with false once every recorded topic has a publisher ('': none)")
 
 
 PARAMETERS = NodeParameters()
@@ -70,6 +75,27 @@ class DemoReportNode(Node):
         self.create_subscription(JointState, contract.JOINT_STATES, lambda m: setattr(self, "joints", m), CONTROL_QOS)
         self.create_subscription(Twist, contract.CMD_VEL, self._on_cmd, COMMAND_QOS)
         self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, self._on_diag, 10)
+        # A graph started paused (the sim bridge's start_paused) runs once this node hears it all: a
+        # busy lockstep graph can take seconds to match a new subscriber, and the report must see t = 0.
+        self.start_sim = self.create_client(SetBool, p["start_sim"]) if p["start_sim"] else None
+        self._waited = 0  # start-sim checks so far (10 a second)
+        # On the wall clock: the sim time (use_sim_time) stands still until the sim is started.
+        wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self._start_timer = self.create_timer(0.1, self._start_when_heard, clock=wall) if self.start_sim else None
+
+    def _start_when_heard(self) -> None:
+        topics = (contract.GAIT_STATE, contract.GROUND_TRUTH, contract.JOINT_STATES, contract.CMD_VEL)
+        silent = [t for t in topics if self.count_publishers(t) == 0]
+        if silent or not self.start_sim.service_is_ready():
+            self._waited += 1
+            if self._waited % 100 == 0:
+                waiting = silent or [self.start_sim.srv_name]
+                self.get_logger().warning(f"still waiting for {waiting} before starting the simulation")
+            return
+        self._start_timer.cancel()
+        self.start_sim.call_async(SetBool.Request(data=False))
+        print(f"[demo_report] every topic has a publisher: starting the simulation ({self.start_sim.srv_name})",
+              flush=True)
 
     def _on_cmd(self, msg: Twist) -> None:
         self.cmd = np.array([msg.linear.x, msg.linear.y, msg.angular.z])
@@ -85,7 +111,11 @@ class DemoReportNode(Node):
         now = ns_from_stamp(msg.header.stamp)
         if self.first_ns is None:
             self.first_ns, self.first_wall = now, time.monotonic()
-        t = (now - self.first_ns) * 1e-9
+            self.next_line = math.floor(now * 1e-9)
+            if now * 1e-9 > 0.5:
+                print(f"[demo_report] WARNING: first sample at t = {now * 1e-9:.1f} s of sim time: the summary "
+                      "misses the start of the run (its topics were matched late)", flush=True)
+        t = now * 1e-9  # [s] sim time
         pos = self.truth.pose.pose.position
         power = float(motor_power(np.asarray(self.joints.effort), np.asarray(self.joints.velocity)).sum())
         self.rows.append((t, self.cmd[0], self.truth.twist.twist.linear.x, pos.x, pos.y, pos.z, power,
@@ -105,8 +135,8 @@ class DemoReportNode(Node):
         data = np.array(self.rows, dtype=float)
         t, cmd, v, x, y, z, power, freq, swing = (data[:, i] for i in range(9))
         wall = time.monotonic() - self.first_wall
-        print(f"\n=== demo summary: {t[-1]:.1f} s of sim time in {wall:.1f} s of wall time "
-              f"({t[-1] / wall:.2f}x real time) ===")
+        print(f"\n=== demo summary: {t[-1] - t[0]:.1f} s of sim time in {wall:.1f} s of wall time "
+              f"({(t[-1] - t[0]) / wall:.2f}x real time) ===")
         print(f"distance {np.hypot(x[-1] - x[0], y[-1] - y[0]):.2f} m, mean speed {np.mean(v):.2f} m/s, "
               f"lowest base height {np.min(z):.3f} m ({'FELL' if np.min(z) < FALL_HEIGHT else 'no fall'}), "
               f"controller steps over their 2 ms budget: {self.missed}")
