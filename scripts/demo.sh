@@ -60,9 +60,13 @@ fi
 # traps at once, and under a wall-clock cap, so a graph that stalls cannot hang the demo.
 cap=$(awk "BEGIN{print int($DURATION * 10 + 120)}")
 _node_command gait_policy_node demo_report
-setsid timeout "$cap" "${_GS_CMD[@]}" --ros-args -p use_sim_time:=true \
-  -p duration:="$(awk "BEGIN{print $DURATION + 1.5}")" \
-  -p output:="$LOGDIR/gait_diagram.png" -p start_sim:=sim_bridge/pause &
+report_args=(--ros-args -p use_sim_time:=true -p duration:="$(awk "BEGIN{print $DURATION + 1.5}")"
+             -p output:="$LOGDIR/gait_diagram.png" -p start_sim:=sim_bridge/pause)
+if [ -n "$GS_NAMESPACE" ]; then  # the report joins the graph's namespace (GS_NAMESPACE, scripts/lib/nodes.sh)
+  _namespace_remaps
+  eval "report_args+=($_GS_REMAPS)"  # shell-quoted by the describer (shlex.join)
+fi
+setsid timeout "$cap" "${_GS_CMD[@]}" "${report_args[@]}" &
 report=$!
 _GS_PIDS+=("$report")  # stopped with the others on exit
 GRAPH_SETS=(--set sim_bridge.start_paused=true)

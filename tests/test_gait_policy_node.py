@@ -140,7 +140,7 @@ def test_demo_report_prints_a_line_per_second_of_sim_time(rclpy_context, capsys,
 @pytest.mark.ros
 def test_demo_report_starts_a_paused_sim_once_every_topic_has_a_publisher(rclpy_context, capsys, tmp_path):
     """scripts/demo.sh starts the sim paused; the report unpauses it (std_srvs/SetBool false) only
-    when it can hear the whole run, and says so if it joined late anyway."""
+    when it can hear the whole run, asks again until it succeeds, and says so if it joined late anyway."""
     report = DemoReportNode(context=rclpy_context, parameter_overrides=[
         Parameter("output", value=str(tmp_path / "gait.png")), Parameter("start_sim", value="sim_bridge/pause")])
     graph = Node("sim_bridge", context=rclpy_context)
@@ -148,7 +148,8 @@ def test_demo_report_starts_a_paused_sim_once_every_topic_has_a_publisher(rclpy_
 
     def on_pause(request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
         calls.append(request.data)
-        response.success = True
+        response.success = len(calls) > 1  # the first request is refused: the report must ask again
+        response.message = "running from 0.000000 s"
         return response
 
     graph.create_service(SetBool, "~/pause", on_pause)
@@ -162,8 +163,8 @@ def test_demo_report_starts_a_paused_sim_once_every_topic_has_a_publisher(rclpy_
         # /cmd_vel has no publisher yet: 1 s of its wall-clock checks must not start the sim.
         assert not spin_until(executor, lambda: bool(calls), 1.0)
         publishers.append(graph.create_publisher(Twist, "/cmd_vel", COMMAND_QOS))
-        assert spin_until(executor, lambda: bool(calls), 10.0) and calls == [False]
-        assert "starting the simulation" in capsys.readouterr().out
+        assert spin_until(executor, report._start_timer.is_canceled, 10.0) and calls == [False, False]
+        assert "started the simulation" in capsys.readouterr().out
         report.truth, report.joints = Odometry(), JointState(velocity=[0.0] * 12, effort=[0.0] * 12)
         late = GaitState()
         late.header.stamp.sec = 3

@@ -1,11 +1,13 @@
 """demo_report: watch a running graph, then summarise the run and draw its gait diagram.
 
-Records /gait/state, /joint_states, /cmd_vel and the sim's /sim/ground_truth/odom for ``duration``
-seconds of sensor time, with one line per second of sim time while it runs (commanded and actual
-speed, gait, the controller's missed deadlines), then prints per speed band: commanded and actual speed, tracking error,
-the gait used (gait_analysis.classify_gait), power and cost of
-transport; plus distance, falls and the controller's missed deadlines. Writes a PNG like the
-paper's acceleration figure: contacts per leg over time with speed, frequency and swing ratio.
+Records /gait/state, /joint_states, /cmd_vel and the sim's /sim/ground_truth/odom until ``duration``
+seconds of sensor (sim) time, counted from 0, not from when it joined (start it before the graph;
+with ``start_sim`` it unpauses a graph started paused once it hears every topic). Prints one line
+per second of sim time while it runs (commanded and actual speed, gait, the controller's missed
+deadlines), then per speed band: commanded and actual speed, tracking error, the gait used
+(gait_analysis.classify_gait), power and cost of transport; plus distance, falls and the
+controller's missed deadlines. Writes a PNG like the paper's acceleration figure: contacts per leg
+over time with speed, frequency and swing ratio.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
@@ -70,32 +73,42 @@ class DemoReportNode(Node):
         self.first_ns: int | None = None
         self.first_wall = 0.0  # [s] monotonic wall time of the first sample: the run's pace
         self.next_line = 0.0  # [s] of sim time: when the next progress line is due
-        self.create_subscription(GaitState, contract.GAIT_STATE, self._on_state, CONTROL_QOS)
-        self.create_subscription(Odometry, contract.GROUND_TRUTH, lambda m: setattr(self, "truth", m), CONTROL_QOS)
-        self.create_subscription(JointState, contract.JOINT_STATES, lambda m: setattr(self, "joints", m), CONTROL_QOS)
-        self.create_subscription(Twist, contract.CMD_VEL, self._on_cmd, COMMAND_QOS)
+        self._recorded = [  # what the summary is made of: the sim starts once each has a publisher
+            self.create_subscription(GaitState, contract.GAIT_STATE, self._on_state, CONTROL_QOS),
+            self.create_subscription(Odometry, contract.GROUND_TRUTH, lambda m: setattr(self, "truth", m), CONTROL_QOS),
+            self.create_subscription(JointState, contract.JOINT_STATES, lambda m: setattr(self, "joints", m),
+                                     CONTROL_QOS),
+            self.create_subscription(Twist, contract.CMD_VEL, self._on_cmd, COMMAND_QOS)]
         self.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, self._on_diag, 10)
         # A graph started paused (the sim bridge's start_paused) runs once this node hears it all: a
         # busy lockstep graph can take seconds to match a new subscriber, and the report must see t = 0.
         self.start_sim = self.create_client(SetBool, p["start_sim"]) if p["start_sim"] else None
+        self._start_request: tuple[Future, float] | None = None  # (reply, monotonic time sent)
         self._waited = 0  # start-sim checks so far (10 a second)
         # On the wall clock: the sim time (use_sim_time) stands still until the sim is started.
         wall = Clock(clock_type=ClockType.STEADY_TIME)
         self._start_timer = self.create_timer(0.1, self._start_when_heard, clock=wall) if self.start_sim else None
 
     def _start_when_heard(self) -> None:
-        topics = (contract.GAIT_STATE, contract.GROUND_TRUTH, contract.JOINT_STATES, contract.CMD_VEL)
-        silent = [t for t in topics if self.count_publishers(t) == 0]
+        """Unpause the sim once each recorded subscription has a matched publisher; asked again if no
+        successful reply comes within 2 s (a lost request must not leave the graph paused)."""
+        if self._start_request is not None:
+            reply, sent = self._start_request
+            if reply.done() and reply.result() is not None and reply.result().success:
+                self._start_timer.cancel()
+                print(f"[demo_report] every topic has a publisher: started the simulation "
+                      f"({self.start_sim.srv_name}: {reply.result().message})", flush=True)
+                return
+            if not reply.done() and time.monotonic() - sent < 2.0:
+                return
+        silent = [sub.topic_name for sub in self._recorded if sub.get_publisher_count() == 0]
         if silent or not self.start_sim.service_is_ready():
             self._waited += 1
             if self._waited % 100 == 0:
-                waiting = silent or [self.start_sim.srv_name]
+                waiting = silent or [f"service {self.start_sim.srv_name}"]
                 self.get_logger().warning(f"still waiting for {waiting} before starting the simulation")
             return
-        self._start_timer.cancel()
-        self.start_sim.call_async(SetBool.Request(data=False))
-        print(f"[demo_report] every topic has a publisher: starting the simulation ({self.start_sim.srv_name})",
-              flush=True)
+        self._start_request = (self.start_sim.call_async(SetBool.Request(data=False)), time.monotonic())
 
     def _on_cmd(self, msg: Twist) -> None:
         self.cmd = np.array([msg.linear.x, msg.linear.y, msg.angular.z])
