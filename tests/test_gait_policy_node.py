@@ -54,8 +54,11 @@ def test_learned_policy_file_drives_gait_params(rclpy_context, tmp_path):
     def arrived() -> bool:
         cmd_pub.publish(cmd)
         odom_pub.publish(odom)
-        return bool(received) and math.isclose(received[-1].stepping_frequency, expected.stepping_frequency,
-                                               rel_tol=1e-6)
+        # Both: the node's shaped command approaches 1.5 m/s, and near saturation one output can
+        # match while the other still moves (once f matched and p_swing was 1e-7 off).
+        return bool(received) and all(
+            math.isclose(getattr(received[-1], key), getattr(expected, key), rel_tol=1e-6)
+            for key in ("stepping_frequency", "swing_ratio"))
 
     try:
         assert spin_until(executor, arrived, timeout_s=20.0), received[-1:] or "no /gait/params"
