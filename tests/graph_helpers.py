@@ -9,6 +9,7 @@ import re
 import signal
 import socket
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -111,26 +112,32 @@ class Graph:
 
     def start_hil(self, clock: str = "lockstep", packet_loss: float = 0.0, lockstep_timeout: float = 0.5,
                   composed_chain: bool = False, policy_params: tuple[str, ...] = (),
-                  controller_params: tuple[str, ...] = ()) -> None:
+                  controller_params: tuple[str, ...] = (), robot_started: Callable[[], object] | None = None) -> None:
         """The graph a1_bringup.graph describes for the virtual bridge (hw_bridge <-UDP-> virtual_a1)
-        on a free loopback port; ``composed_chain``: hw_bridge and controller in one process."""
+        on a free loopback port; ``composed_chain``: hw_bridge and controller in one process.
+        ``robot_started()`` runs once virtual_a1 is up, before anything talks to it (so before its
+        first tick in lockstep): e.g. a watcher waiting to hear its ground truth from t = 0."""
         port = free_udp_port()
         bridge = {"virtual_a1": {"port": port, "packet_loss": packet_loss, "loss_seed": 7, "settle_time": 0.0},
                   "hw_bridge": {"robot_port": port, "local_port": 0, "state_timeout": 0.02,
                                 "lockstep_timeout": lockstep_timeout}}
         self.realtime = clock == "realtime"
-        self._start_described(describe(clock, "virtual"), bridge, controller_params, policy_params, composed_chain)
+        self._start_described(describe(clock, "virtual"), bridge, controller_params, policy_params, composed_chain,
+                              after={"virtual_a1": robot_started} if robot_started else {})
 
     def _start_described(self, nodes: list, bridge: dict[str, dict], controller_params: tuple[str, ...],
-                         policy_params: tuple[str, ...], composed_chain: bool) -> None:
+                         policy_params: tuple[str, ...], composed_chain: bool,
+                         after: dict[str, Callable[[], object]] | None = None) -> None:
         """Start a graph description with the ``bridge`` nodes' extra parameters and the controller's
-        and policy's ``name:=value`` ones; ``composed_chain``: in the composed form."""
+        and policy's ``name:=value`` ones; ``composed_chain``: in the composed form; ``after``:
+        process name -> what to run once it is started, before the next one starts."""
         extra = {**bridge, "convex_mpc": dict(p.split(":=", 1) for p in controller_params),
                  "gait_policy": dict(p.split(":=", 1) for p in policy_params)}
         for node in nodes:
             node.params.update({k: str(v) for k, v in extra.get(node.name, {}).items()})
         for node in composed(nodes) if composed_chain else nodes:
             self.start(node.name, node.package, node.executable, *node.arguments(CONFIG), nodes=node.nodes)
+            (after or {}).get(node.name, lambda: None)()
 
     def start_controller(self, *params: str) -> None:
         """The controller as the graph describes it for this graph's clock (after a kill, or next to

@@ -52,7 +52,7 @@ class Watcher(Node):
             for t in m.transforms), TF_QOS)
         self._pub = self.create_publisher(Twist, contract.CMD_VEL, reliable)
         self._last_pub = 0.0
-        self.create_subscription(Odometry, contract.GROUND_TRUTH, self._on_truth, PROBE_QOS)
+        self._truth_sub = self.create_subscription(Odometry, contract.GROUND_TRUTH, self._on_truth, PROBE_QOS)
 
     def watch_joints_and_commands(self) -> None:
         """Also record /motor_command stamps and /joint_states: 1000 messages/s more for this
@@ -79,6 +79,10 @@ class Watcher(Node):
 
     def _on_joints(self, m: JointState) -> None:
         self.joints.append((ns_from_stamp(m.header.stamp) * 1e-9, np.array(m.velocity), np.array(m.effort)))
+
+    def hears_ground_truth(self) -> bool:
+        """The ground truth subscription has matched a publisher."""
+        return self._truth_sub.get_publisher_count() > 0
 
     def sim_time(self) -> float:
         return self.truth[-1][0] if self.truth else 0.0

@@ -38,7 +38,10 @@ def first_damped_tick(joints: list[tuple[float, np.ndarray, np.ndarray]], after:
 
 @pytest.fixture
 def hil(request):
-    """The e2e graph fixture (process graph, watcher node, executor), plus the latest /diagnostics by name."""
+    """The e2e graph fixture (process graph, watcher node, executor), the latest /diagnostics by
+    name, and ``start(clock, **start_hil arguments)``: the HIL graph, its robot held (lockstep:
+    nothing talks to it, so it does not tick) until the watcher hears its ground truth. A busy
+    lockstep graph can take seconds to match a new subscriber, and these tests look at t = 0 on."""
     g, watcher, executor = request.getfixturevalue("graph")
     watcher.watch_joints_and_commands()
     diagnostics: dict[str, dict[str, str]] = {}
@@ -46,19 +49,26 @@ def hil(request):
     def on_diagnostics(msg: DiagnosticArray) -> None:
         diagnostics.update({s.name: {kv.key: kv.value for kv in s.values} for s in msg.status})
 
+    def robot_heard() -> None:
+        assert spin_until(executor, watcher.hears_ground_truth, 30.0), "virtual_a1's ground truth never matched"
+
+    def start(clock: str, **kwargs) -> None:
+        g.start_hil(clock, robot_started=robot_heard, **kwargs)
+
     watcher.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
-    return g, watcher, executor, diagnostics
+    return g, watcher, executor, diagnostics, start
 
 
 @pytest.mark.ros
 @pytest.mark.slow
 def test_hil_walks_1_mps_then_damps_within_50_ms_of_controller_death(hil):
-    g, watcher, executor, diagnostics = hil
-    g.start_hil("lockstep", packet_loss=0.0, lockstep_timeout=0.05)
+    g, watcher, executor, diagnostics, start_hil = hil
+    start_hil("lockstep", packet_loss=0.0, lockstep_timeout=0.05)
     watcher.speed = 1.0
     run_until(executor, watcher, g, 7.5, wall_timeout=300)
     assert watcher.lowest() > 0.18, "fell"
-    assert max(z for t, _, z in watcher.truth if STAND_UP_DONE - 1.0 < t < STAND_UP_DONE) > 0.24, "never stood up"
+    standing = [z for t, _, z in watcher.truth if STAND_UP_DONE - 1.0 < t < STAND_UP_DONE]
+    assert standing and max(standing) > 0.24, f"never stood up (ground truth heard from t = {watcher.truth[0][0]} s)"
     # 1 m/s^2 to 1.0 m/s after the stand-up: 5 s into walking is t = 6.5 .. 7.5 s, as with the sim bridge.
     speed = watcher.mean_speed(6.5, 7.5)
     assert speed == pytest.approx(1.0, rel=0.10)
@@ -87,8 +97,8 @@ def test_hil_walks_1_mps_then_damps_within_50_ms_of_controller_death(hil):
 def test_hil_5_percent_packet_loss_does_not_fall(hil):
     """In the composed form (hw_bridge, estimator and controller one process, as bring-up starts
     them), lockstep; the separate form is the controller-death test's."""
-    g, watcher, executor, diagnostics = hil
-    g.start_hil("lockstep", packet_loss=0.05, composed_chain=True)
+    g, watcher, executor, diagnostics, start_hil = hil
+    start_hil("lockstep", packet_loss=0.05, composed_chain=True)
     assert sorted(g.procs) == ["control_chain", "gait_policy", "virtual_a1"]
     watcher.speed = 1.0
     run_until(executor, watcher, g, 6.0, wall_timeout=300)  # 2.5 s at 1.0 m/s (reached at about 3.5 s)
@@ -115,8 +125,8 @@ def test_hil_realtime_composed_chain_stands_up_and_the_robot_damps_when_it_is_ki
     process takes bridge and controller at once, so nothing sends the bridge's last damping
     datagrams: the robot, left without commands, damps its motors on its own after its
     command_loss_timeout (config/virtual_a1.yaml), as the real A1 is assumed to."""
-    g, watcher, executor, diagnostics = hil
-    g.start_hil("realtime", composed_chain=True)
+    g, watcher, executor, diagnostics, start_hil = hil
+    start_hil("realtime", composed_chain=True)
     assert sorted(g.procs) == ["control_chain", "gait_policy", "virtual_a1"]
     run_until(executor, watcher, g, STAND_UP_DONE + 1.0, wall_timeout=120)
     assert max(z for t, _, z in watcher.truth if t > STAND_UP_DONE - 1.0) > 0.24, "never stood up"
