@@ -2,7 +2,11 @@
 estimator + controller, no ROS), so that a change meant to make it delay-tolerant can be measured
 in minutes rather than by 10-minute realtime soaks.
 
-Rapid-trot schedule ramped to SPEED at 1 m/s^2. From FAULT_AT on, one of two faults:
+The hand-tuned gaits (rapid trot at SPEED), or with ``--policy`` a learned policy file or ``learned``
+(the shipped one, the graph's default gait policy), ramped to SPEED at 1 m/s^2. The learned
+policy's observation takes the commanded velocity as the measured one (this loop has no 20 Hz
+estimate to hand it; at a steady 1.5 m/s they differ by a few per cent). From FAULT_AT on, one of
+two faults:
 
 - sustained latency: every joint command reaches the motors ``latency`` late (the motors hold the
   last one they had meanwhile), as the realtime scenario's 20 ms /motor_command delay;
@@ -16,7 +20,7 @@ if it does not fall (tilt or height, rollout.tilted_or_low) before FAULT_AT + HO
 tables, then one JSON line.
 
 Usage: source scripts/env.sh && python benchmarks/delay_margin.py [--periods 1,5]
-       [--force-weights 1e-6,3e-5] [--latencies-ms 0,10,20] [--stalls-ms 20,40]
+       [--force-weights 1e-6,3e-5] [--latencies-ms 0,10,20] [--stalls-ms 20,40] [--policy learned]
 """
 
 from __future__ import annotations
@@ -25,9 +29,12 @@ import argparse
 import dataclasses
 import json
 
+import numpy as np
+from a1_common.command import VelocityCommand
 from convex_mpc_node.controller import load_controller_config
-from convex_mpc_node.gait import gait_for_speed, load_hand_tuned_gaits
-from gait_policy_node.rollout import run_with_late_commands
+from convex_mpc_node.gait import GaitParams, gait_for_speed, load_hand_tuned_gaits
+from gait_policy_node.policy import make_policy
+from gait_policy_node.rollout import GaitSchedule, run_with_late_commands
 
 from gait_policy_node import speed_profiles
 
@@ -37,18 +44,33 @@ HOLD = 3.0  # [s] the fault lasts this long; surviving it is passing
 STALL_EVERY = 0.5  # [s] mean time between stalls (uniform 0.5x-1.5x, seeded)
 
 
-def run(mpc_period: int, force_weight: float, latency: float = 0.0, stall: float = 0.0) -> float | None:
+def gait_schedule(policy: str) -> GaitSchedule:
+    """``scheduled``: the hand-tuned gait for the commanded speed; else a learned policy (make_policy's
+    spec), observing the command as the measured velocity."""
+    if policy == "scheduled":
+        gaits = load_hand_tuned_gaits()
+        return lambda t, c: gait_for_speed(c.vx, gaits)
+    learned = make_policy(policy)
+
+    def schedule(t: float, c: VelocityCommand) -> GaitParams:
+        return learned(np.array([c.vx, c.vy]), np.array([c.vx, c.vy, 0.0]))
+
+    return schedule
+
+
+def run(schedule: GaitSchedule, mpc_period: int, force_weight: float, latency: float = 0.0,
+        stall: float = 0.0) -> float | None:
     """Sim time [s] of the fall, or None if the robot is up at FAULT_AT + HOLD."""
     base = load_controller_config()
     config = dataclasses.replace(base, mpc_period_steps=mpc_period,
                                  mpc=dataclasses.replace(base.mpc, force_weight=force_weight))
-    gaits = load_hand_tuned_gaits()
-    return run_with_late_commands(lambda t, c: gait_for_speed(c.vx, gaits), speed_profiles.ramp(SPEED), FAULT_AT + HOLD,
+    return run_with_late_commands(schedule, speed_profiles.ramp(SPEED), FAULT_AT + HOLD,
                                   controller_config=config, fault_at=FAULT_AT, latency=latency, stall=stall,
                                   stall_every=STALL_EVERY)
 
 
-def sweep(title: str, rows: list[tuple[int, float]], values_ms: list[float], kind: str) -> dict:
+def sweep(schedule: GaitSchedule, title: str, rows: list[tuple[int, float]], values_ms: list[float],
+          kind: str) -> dict:
     """One table: rows are (MPC period, force weight), columns the fault sizes; cells 'up' or the
     fall time."""
     print(f"\n{title}")
@@ -60,7 +82,7 @@ def sweep(title: str, rows: list[tuple[int, float]], values_ms: list[float], kin
         falls = {}
         cells = f"{period:<11}{force_weight:>7.0e}"
         for value in values_ms:
-            fell = run(period, force_weight, **{kind: value / 1000.0})
+            fell = run(schedule, period, force_weight, **{kind: value / 1000.0})
             falls[f"{value / 1000.0:g}"] = fell
             cells += f"{'up' if fell is None else f'fell {fell:.2f}':>12}"
             print(f"\r{cells}", end="", flush=True)
@@ -77,6 +99,8 @@ def main() -> None:
     parser.add_argument("--force-weights", default="1e-6,3e-5", help="MPC force weights (alpha), comma-separated")
     parser.add_argument("--latencies-ms", default="0,16,20,24,30", help="sustained command latencies [ms]")
     parser.add_argument("--stalls-ms", default="20,40,60", help="controller stalls [ms]")
+    parser.add_argument("--policy", default="scheduled",
+                        help="scheduled (the hand-tuned gaits: rapid trot at 1.5 m/s) | learned | a policy .npz")
     args = parser.parse_args()
 
     def numbers(text: str, name: str, low: float, high: float, cast=float) -> list:
@@ -93,13 +117,15 @@ def main() -> None:
     rows = [(period, weight) for period in periods for weight in force_weights]
     latencies = numbers(args.latencies_ms, "--latencies-ms", 0.0, 100.0)
     stalls = numbers(args.stalls_ms, "--stalls-ms", 0.0, 100.0)
-    print(f"rapid trot ramped to {SPEED} m/s; fault from {FAULT_AT} s for {HOLD} s; 'up' = survived")
+    schedule = gait_schedule(args.policy)
+    print(f"gait policy {args.policy!r}, {schedule(FAULT_AT, VelocityCommand(vx=SPEED))} at {SPEED} m/s, ramped "
+          f"to it; fault from {FAULT_AT} s for {HOLD} s; 'up' = survived")
     results = {
-        "speed_m_per_s": SPEED, "fault_duration_s": HOLD,
-        "sustained_command_latency": sweep("Sustained command latency (every command this late):",
+        "gait_policy": args.policy, "speed_m_per_s": SPEED, "fault_duration_s": HOLD,
+        "sustained_command_latency": sweep(schedule, "Sustained command latency (every command this late):",
                                            rows, latencies, "latency"),
-        "controller_stalls": sweep(f"Controller stalls (about every {STALL_EVERY} s, motors hold the last command):",
-                                   rows, stalls, "stall"),
+        "controller_stalls": sweep(schedule, f"Controller stalls (about every {STALL_EVERY} s, motors hold the "
+                                   "last command):", rows, stalls, "stall"),
     }
     print(json.dumps(results))
 
