@@ -50,6 +50,20 @@ def test_every_policy_runs_the_same_seeds_and_the_figures_are_run_episodes(two_p
     assert figures["policies"][str(a)] != figures["policies"][str(b)]  # two policies, not one twice
 
 
+def test_by_speed_splits_each_return_into_its_bands_against_the_first_policy(two_policies, capsys):
+    _, (a, b) = two_policies
+    assert main([str(a), str(b), "--seeds", "2", "--workers", "2", "--by-speed"]) == 0
+    figures = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    for spec, bands in figures["by_speed"].items():
+        row = figures["policies"][spec]
+        assert sum(r["return"] for r in bands) == pytest.approx(row["return_mean"], rel=1e-9)
+        assert all(r["policy_steps"] > 0 and r["speed_penalty"] >= 0 and r["energy_penalty"] >= 0 for r in bands)
+    assert all(r["return_minus_first"] == 0.0 for r in figures["by_speed"][str(a)])
+    first = {tuple(r["band"]): r["return"] for r in figures["by_speed"][str(a)]}
+    for r in figures["by_speed"][str(b)]:
+        assert r["return_minus_first"] == pytest.approx(r["return"] - first[tuple(r["band"])], abs=1e-9)
+
+
 def test_bad_arguments_name_what_is_wrong(two_policies, capsys, tmp_path):
     _, (a, _) = two_policies
     assert main([str(a), "--seeds", "0"]) == 2

@@ -1,7 +1,7 @@
 """compare_policies: episode returns of gait policies over several seeds, side by side.
 
     compare_policies POLICY [POLICY ...] [--config RUN/config.yaml] [--seeds N] [--first-seed S]
-                     [--workers N] [--lags DEG ... --below V [--timing BEST.csv ...]]
+                     [--workers N] [--lags DEG ... --below V [--timing BEST.csv ...]] [--by-speed]
 
 train_es keeps as "best" the mean whose one evaluation episode (seed 0) scored highest, so two
 candidates an evaluation apart may differ by no more than one episode's luck. This runs every
@@ -15,7 +15,11 @@ f and p_swing kept): whether a four-beat footfall at low speed would pay in this
 whether the optimiser is leaving return there. ``--timing`` takes f and p_swing for those variants
 from sweep_gaits ``best.csv`` files instead (each lag's best of the grid, interpolated linearly over
 the commanded speed and held beyond the swept speeds): the four-beat gait with the timing that made
-it cheapest at steady speed. Ends with one JSON line of the figures.
+it cheapest at steady speed. ``--by-speed`` also splits each policy's return by commanded-speed band
+(gait_analysis.SPEED_BANDS): per band the policy steps, the return earned there and its speed and
+energy penalties (means over the seeds), and how far each policy's band return is from the first's,
+beside the seed-to-seed spread of that band: where along the episode one gait earns more than another
+and whether the search could tell. Ends with one JSON line of the figures.
 """
 
 from __future__ import annotations
@@ -31,8 +35,9 @@ import numpy as np
 from a1_common.config import ConfigError, require_range
 from convex_mpc_node.gait import GaitParams
 
-from gait_policy_node.env import GaitEnv
+from gait_policy_node.env import GaitEnv, StepInfo
 from gait_policy_node.eval_policy import ObservationPolicy, resolve_policy
+from gait_policy_node.gait_analysis import SPEED_BANDS
 from gait_policy_node.rollout_workers import EpisodeStats, run_episode
 from gait_policy_node.sweep_gaits import lag_family_offsets, lag_name
 from gait_policy_node.train_config import TrainConfig, load_train_config, train_config_from_mapping
@@ -91,34 +96,90 @@ def label(variant: Variant) -> str:
     return f"{spec} @ lag {lag:+g}{' swept timing' if timing else ''} below {below:g} m/s"
 
 
-def _episode(variant: Variant, config_dict: dict, seed: int) -> EpisodeStats:
-    """One episode of a policy variant on ``config_dict``'s env and reward (runs in a worker process)."""
+# Columns of a band-terms array (one row per SPEED_BANDS band): sums over the band's policy steps.
+BAND_COLUMNS = ("policy_steps", "return", "speed_penalty", "energy_penalty")
+
+
+def band_of(speed: float) -> int | None:
+    """Index of the SPEED_BANDS band holding commanded speed ``speed`` [m/s], None outside them."""
+    return next((i for i, (lo, hi) in enumerate(SPEED_BANDS) if lo <= speed < hi), None)
+
+
+def _episode(variant: Variant, config_dict: dict, seed: int) -> tuple[EpisodeStats, np.ndarray]:
+    """One episode of a policy variant on ``config_dict``'s env and reward (runs in a worker
+    process); its stats and its band terms (BAND_COLUMNS per SPEED_BANDS band)."""
     spec, lag, below, timing = variant
     policy, _ = resolve_policy(spec)
     if lag is not None:
         policy = with_low_speed_lag(policy, lag, below, timing)
     config = train_config_from_mapping(config_dict)
     env = GaitEnv(config.env, config.reward)
+    bands = np.zeros((len(SPEED_BANDS), len(BAND_COLUMNS)))
+
+    def on_step(reward: float, info: StepInfo) -> None:
+        band = band_of(abs(info.desired_speed))
+        if band is not None:
+            bands[band] += (1.0, reward, info.terms.speed_penalty, info.terms.energy_penalty)
+
     try:
-        return run_episode(env, policy, seed)[0]
+        return run_episode(env, policy, seed, on_step=on_step)[0], bands
     finally:
         env.close()
 
 
 def compare(variants: list[Variant], config: TrainConfig, seeds: list[int],
-            workers: int) -> dict[str, list[EpisodeStats]]:
-    """Every policy variant on every seed; the stats in seed order, per variant's label."""
+            workers: int) -> dict[str, list[tuple[EpisodeStats, np.ndarray]]]:
+    """Every policy variant on every seed; (stats, band terms) in seed order, per variant's label."""
     config_dict = config.to_dict()
     jobs = [(variant, seed) for variant in variants for seed in seeds]
     with ProcessPoolExecutor(max_workers=workers) as pool:
         futures = [pool.submit(_episode, variant, config_dict, seed) for variant, seed in jobs]
-        results: dict[str, list[EpisodeStats]] = {label(v): [] for v in variants}
+        results: dict[str, list[tuple[EpisodeStats, np.ndarray]]] = {label(v): [] for v in variants}
         for (variant, seed), future in zip(jobs, futures, strict=True):
-            stats = future.result()
-            results[label(variant)].append(stats)
+            stats, bands = future.result()
+            results[label(variant)].append((stats, bands))
             print(f"[compare_policies] {label(variant)} seed {seed}: return {stats.episode_return:.2f}"
                   f"{' (fell)' if stats.fell else ''}", flush=True)
     return results
+
+
+def _std(values: np.ndarray) -> float:
+    """Sample standard deviation; 0 for a single seed."""
+    return float(values.std(ddof=1)) if len(values) > 1 else 0.0
+
+
+def by_speed(results: dict[str, list[tuple[EpisodeStats, np.ndarray]]]) -> dict[str, list[dict]]:
+    """Per policy, per band with policy steps: the means over the seeds of BAND_COLUMNS, the band
+    return's seed-to-seed standard deviation, and (from the second policy on) the mean difference of
+    the band return from the first policy's on the same seeds, with its standard deviation."""
+    first = np.array([bands for _, bands in next(iter(results.values()))])  # (seeds, bands, columns)
+    out = {}
+    for spec, runs in results.items():
+        terms = np.array([bands for _, bands in runs])
+        rows = []
+        for i, (lo, hi) in enumerate(SPEED_BANDS):
+            if not terms[:, i, 0].any():
+                continue
+            returns = terms[:, i, 1]
+            difference = returns - first[:, i, 1]
+            rows.append({"band": [lo, hi], **{c: float(terms[:, i, k].mean()) for k, c in enumerate(BAND_COLUMNS)},
+                         "return_std": _std(returns), "return_minus_first": float(difference.mean()),
+                         "return_minus_first_std": _std(difference)})
+        out[spec] = rows
+    return out
+
+
+def format_by_speed(rows: dict[str, list[dict]]) -> str:
+    lines = []
+    for spec, bands in rows.items():
+        lines.append(f"\n{spec}: return by commanded-speed band (means over the seeds)")
+        lines.append(f"{'band [m/s]':<11}{'steps':>7}{'return':>9}{'std':>6}{'speed pen':>11}{'energy pen':>12}"
+                     f"{'- first':>9}{'std':>6}")
+        for r in bands:
+            lines.append(f"{r['band'][0]:.1f}-{r['band'][1]:<7.1f}{r['policy_steps']:7.1f}{r['return']:9.2f}"
+                         f"{r['return_std']:6.2f}{r['speed_penalty']:11.3f}{r['energy_penalty']:12.3f}"
+                         f"{r['return_minus_first']:+9.2f}{r['return_minus_first_std']:6.2f}")
+    return "\n".join(lines)
 
 
 def summary(stats: list[EpisodeStats]) -> dict[str, float]:
@@ -144,6 +205,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--below", type=float, default=1.25, help="commanded speed [m/s] under which --lags apply")
     parser.add_argument("--timing", nargs="+", default=[], metavar="BEST_CSV",
                         help="sweep_gaits best.csv files: --lags variants take f and p_swing from them")
+    parser.add_argument("--by-speed", action="store_true",
+                        help="also split each return by commanded-speed band, against the first policy's")
     return parser.parse_args(argv)
 
 
@@ -173,15 +236,19 @@ def main(argv: list[str] | None = None) -> int:
     variants: list[Variant] = [(spec, lag, args.below, timings.get(lag)) for spec in args.policies
                                for lag in (None, *args.lags)]
     results = compare(variants, config, seeds, min(args.workers, len(seeds) * len(variants)))
-    rows = {spec: summary(stats) for spec, stats in results.items()}
+    rows = {spec: summary([stats for stats, _ in runs]) for spec, runs in results.items()}
     width = max(len(s) for s in rows)
     print(f"\n{'policy':<{width}}  return mean  std    min      max      falls  CoT    speed error^2")
     for spec, r in rows.items():
         print(f"{spec:<{width}}  {r['return_mean']:11.2f}  {r['return_std']:5.2f}  {r['return_min']:7.2f}  "
               f"{r['return_max']:7.2f}  {r['falls']:5d}  {r['cost_of_transport_mean']:.3f}  "
               f"{r['speed_error_mean']:.5f}")
-    print(json.dumps({"seeds": seeds, "episode_steps": config.env.episode_steps,
-                      "profile": config.env.profile.kind, "policies": rows}))
+    figures = {"seeds": seeds, "episode_steps": config.env.episode_steps, "profile": config.env.profile.kind,
+               "policies": rows}
+    if args.by_speed:
+        figures["by_speed"] = by_speed(results)
+        print(format_by_speed(figures["by_speed"]))
+    print(json.dumps(figures))
     return 0
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from a1_common.config import ConfigError
 from convex_mpc_node.gait import GaitParams
 
-from gait_policy_node.env import ControlRecord, GaitEnv
+from gait_policy_node.env import ControlRecord, GaitEnv, StepInfo
 from gait_policy_node.learned_policy import NetworkPolicy
 from gait_policy_node.speed_profiles import SpeedProfile
 from gait_policy_node.train_config import TrainConfig, train_config_from_mapping
@@ -42,8 +42,10 @@ class EpisodeStats:
 
 def run_episode(env: GaitEnv, policy: Callable[[np.ndarray], GaitParams], seed: int,
                 profile: SpeedProfile | None = None, record: bool = False,
-                steps: int | None = None) -> tuple[EpisodeStats, ControlRecord | None]:
-    """One episode of ``steps`` policy steps (default: the env's) or until a fall."""
+                steps: int | None = None,
+                on_step: Callable[[float, StepInfo], None] | None = None) -> tuple[EpisodeStats, ControlRecord | None]:
+    """One episode of ``steps`` policy steps (default: the env's) or until a fall; ``on_step(reward,
+    info)`` sees every policy step (e.g. the reward's terms against the commanded speed)."""
     start = time.perf_counter()
     obs = env.reset(seed, profile=profile, record=record)
     total, n, fell = 0.0, 0, False
@@ -51,6 +53,8 @@ def run_episode(env: GaitEnv, policy: Callable[[np.ndarray], GaitParams], seed: 
     limit = steps or env.config.episode_steps
     while n < limit:
         obs, reward, done, info = env.step(policy(obs))
+        if on_step is not None:
+            on_step(reward, info)
         total += reward
         n += 1
         speed_error += info.terms.relative_speed_error**2
