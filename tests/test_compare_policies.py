@@ -64,6 +64,31 @@ def test_by_speed_splits_each_return_into_its_bands_against_the_first_policy(two
         assert r["return_minus_first"] == pytest.approx(r["return"] - first[tuple(r["band"])], abs=1e-9)
 
 
+def test_a_blend_moves_the_low_speed_gait_toward_the_other_policys_along_the_shorter_arc(two_policies, capsys):
+    from gait_policy_node.compare_policies import blend, with_low_speed_blend
+
+    _, (a, b) = two_policies
+    a_gait, b_gait = GaitParams(1.0, 0.2, (0.0, 0.1, 3.0, 6.2)), GaitParams(3.0, 0.6, (0.0, 6.1, 3.2, 0.2))
+    half = blend(a_gait, b_gait, 0.5)
+    assert half.stepping_frequency == pytest.approx(2.0) and half.swing_ratio == pytest.approx(0.4)
+    # FL and RL go the short way across 0 / 2 pi (0.28 rad apart, not 6.0), and stay in [0, 2 pi).
+    assert np.allclose(half.phase_offsets, (0.0, 2 * np.pi - (np.pi - 3.1), 3.1, 6.2 + (np.pi - 3.0) - 2 * np.pi))
+    assert blend(a_gait, b_gait, 0.0) == GaitParams(1.0, 0.2, pytest.approx(a_gait.phase_offsets))
+    pa, pb = load_policy(a)[0], load_policy(b)[0]
+    slow, fast = np.array([0.5, 0.4, 0.0, 0.0]), np.array([1.5, 1.4, 0.0, 0.0])
+    whole_way = with_low_speed_blend(pa, pb, 1.0, below=1.0)
+    assert whole_way(slow).stepping_frequency == pytest.approx(pb(slow).stepping_frequency)
+    assert whole_way(fast) == pa(fast)
+    assert main([str(a), "--seeds", "1", "--workers", "1", "--toward", str(b), "--fractions", "0", "1",
+                 "--below", "5"]) == 0
+    rows = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["policies"]
+    assert rows[f"{a} -> {b} x0 below 5 m/s"]["return_mean"] == pytest.approx(rows[str(a)]["return_mean"], rel=1e-12)
+    assert main([str(a), "--toward", str(b)]) == 2
+    assert "--toward and --fractions go together" in capsys.readouterr().err
+    assert main([str(a), "--toward", str(b), "--fractions", "1.5"]) == 2
+    assert "--fractions must be in [0.0, 1.0], got 1.5" in capsys.readouterr().err
+
+
 def test_bad_arguments_name_what_is_wrong(two_policies, capsys, tmp_path):
     _, (a, _) = two_policies
     assert main([str(a), "--seeds", "0"]) == 2

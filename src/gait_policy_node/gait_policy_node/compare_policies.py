@@ -1,7 +1,8 @@
 """compare_policies: episode returns of gait policies over several seeds, side by side.
 
     compare_policies POLICY [POLICY ...] [--config RUN/config.yaml] [--seeds N] [--first-seed S]
-                     [--workers N] [--lags DEG ... --below V [--timing BEST.csv ...]] [--by-speed]
+                     [--workers N] [--lags DEG ... --below V [--timing BEST.csv ...]]
+                     [--toward POLICY --fractions X ... --below V] [--by-speed]
 
 train_es keeps as "best" the mean whose one evaluation episode (seed 0) scored highest, so two
 candidates an evaluation apart may differ by no more than one episode's luck. This runs every
@@ -15,11 +16,16 @@ f and p_swing kept): whether a four-beat footfall at low speed would pay in this
 whether the optimiser is leaving return there. ``--timing`` takes f and p_swing for those variants
 from sweep_gaits ``best.csv`` files instead (each lag's best of the grid, interpolated linearly over
 the commanded speed and held beyond the swept speeds): the four-beat gait with the timing that made
-it cheapest at steady speed. ``--by-speed`` also splits each policy's return by commanded-speed band
-(gait_analysis.SPEED_BANDS): per band the policy steps, the return earned there and its speed and
-energy penalties (means over the seeds), and how far each policy's band return is from the first's,
-beside the seed-to-seed spread of that band: where along the episode one gait earns more than another
-and whether the search could tell. Ends with one JSON line of the figures.
+it cheapest at steady speed. ``--toward B --fractions ...`` adds, for each policy and fraction x, the
+policy whose gait below ``--below`` is x of the way to policy B's gait at the same observation
+(f and p_swing linear, each phase offset along the shorter arc): the return along a straight path in
+gait space from one optimum to another, i.e. whether a valley lies between them. ``--by-speed``
+also splits each policy's return by commanded-speed band (gait_analysis.SPEED_BANDS): per band the
+policy steps, the return earned there and its speed and energy penalties (means over the seeds),
+and how far each policy's band return is from the first's, beside the seed-to-seed spread: where
+along the episode one gait earns more than another. On a fixed profile (ramp, steps, constant) an
+episode does not depend on its seed, so one seed does; the spread matters for ``random``. Ends with
+one JSON line of the figures.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ import json
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 from a1_common.config import ConfigError, require_range
@@ -44,8 +51,20 @@ from gait_policy_node.train_config import TrainConfig, load_train_config, train_
 
 # Stepping frequency [Hz] and swing ratio against commanded speed [m/s]: (speeds, f, p_swing), speeds increasing.
 Timing = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
-# (policy spec, lag [deg] or None for the policy as it is, below [m/s], timing or None for the policy's own)
-Variant = tuple[str, float | None, float, Timing | None]
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A policy as it is, or changed below the commanded speed ``below`` [m/s]: its offsets the lag
+    family's (``lag`` [deg], with ``timing`` or its own f and p_swing), or its gait ``fraction`` of
+    the way to policy ``toward``'s."""
+
+    spec: str
+    below: float = 1.25
+    lag: float | None = None
+    timing: Timing | None = None
+    toward: str | None = None
+    fraction: float = 0.0
 
 
 def load_timing(paths: list[str], lag_deg: float) -> Timing:
@@ -89,11 +108,33 @@ def with_low_speed_lag(policy: ObservationPolicy, lag_deg: float, below: float,
     return wrapped
 
 
+def blend(a: GaitParams, b: GaitParams, fraction: float) -> GaitParams:
+    """The gait ``fraction`` of the way from ``a`` to ``b``: f and p_swing linearly, each phase
+    offset along the shorter arc [rad]."""
+    arcs = np.angle(np.exp(1j * (np.asarray(b.phase_offsets) - np.asarray(a.phase_offsets))))
+    return GaitParams(a.stepping_frequency + fraction * (b.stepping_frequency - a.stepping_frequency),
+                      a.swing_ratio + fraction * (b.swing_ratio - a.swing_ratio),
+                      tuple(float(o) for o in np.mod(np.asarray(a.phase_offsets) + fraction * arcs, 2 * np.pi)))
+
+
+def with_low_speed_blend(policy: ObservationPolicy, other: ObservationPolicy, fraction: float,
+                         below: float) -> ObservationPolicy:
+    """``policy`` whose gait, while the commanded speed (observation 0) [m/s] is under ``below``, is
+    ``fraction`` of the way to ``other``'s gait for the same observation."""
+
+    def wrapped(obs: np.ndarray) -> GaitParams:
+        gait = policy(obs)
+        return gait if abs(float(obs[0])) >= below else blend(gait, other(obs), fraction)
+    return wrapped
+
+
 def label(variant: Variant) -> str:
-    spec, lag, below, timing = variant
-    if lag is None:
-        return spec
-    return f"{spec} @ lag {lag:+g}{' swept timing' if timing else ''} below {below:g} m/s"
+    v = variant
+    if v.toward is not None:
+        return f"{v.spec} -> {v.toward} x{v.fraction:g} below {v.below:g} m/s"
+    if v.lag is None:
+        return v.spec
+    return f"{v.spec} @ lag {v.lag:+g}{' swept timing' if v.timing else ''} below {v.below:g} m/s"
 
 
 # Columns of a band-terms array (one row per SPEED_BANDS band): sums over the band's policy steps.
@@ -108,10 +149,11 @@ def band_of(speed: float) -> int | None:
 def _episode(variant: Variant, config_dict: dict, seed: int) -> tuple[EpisodeStats, np.ndarray]:
     """One episode of a policy variant on ``config_dict``'s env and reward (runs in a worker
     process); its stats and its band terms (BAND_COLUMNS per SPEED_BANDS band)."""
-    spec, lag, below, timing = variant
-    policy, _ = resolve_policy(spec)
-    if lag is not None:
-        policy = with_low_speed_lag(policy, lag, below, timing)
+    policy, _ = resolve_policy(variant.spec)
+    if variant.lag is not None:
+        policy = with_low_speed_lag(policy, variant.lag, variant.below, variant.timing)
+    if variant.toward is not None:
+        policy = with_low_speed_blend(policy, resolve_policy(variant.toward)[0], variant.fraction, variant.below)
     config = train_config_from_mapping(config_dict)
     env = GaitEnv(config.env, config.reward)
     bands = np.zeros((len(SPEED_BANDS), len(BAND_COLUMNS)))
@@ -205,6 +247,10 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--below", type=float, default=1.25, help="commanded speed [m/s] under which --lags apply")
     parser.add_argument("--timing", nargs="+", default=[], metavar="BEST_CSV",
                         help="sweep_gaits best.csv files: --lags variants take f and p_swing from them")
+    parser.add_argument("--toward", metavar="POLICY", help="also run each policy's gait below --below moved "
+                                                         "--fractions of the way to this policy's")
+    parser.add_argument("--fractions", type=float, nargs="+", default=[], metavar="X",
+                        help="fractions of the way to --toward's gait, each in [0, 1]")
     parser.add_argument("--by-speed", action="store_true",
                         help="also split each return by commanded-speed band, against the first policy's")
     return parser.parse_args(argv)
@@ -225,6 +271,12 @@ def main(argv: list[str] | None = None) -> int:
             lag_family_offsets(lag)  # ConfigError naming the range
         if args.timing and not args.lags:
             raise ConfigError("--timing applies to --lags variants: give --lags too")
+        if bool(args.toward) != bool(args.fractions):
+            raise ConfigError("--toward and --fractions go together: give both or neither")
+        for fraction in args.fractions:
+            require_range("--fractions", fraction, 0.0, 1.0)
+        if args.toward:
+            resolve_policy(args.toward)  # a bad one fails before any episode
         timings = {lag: load_timing(args.timing, lag) for lag in args.lags} if args.timing else {}
         configs = {spec: resolve_policy(spec)[1] for spec in args.policies}  # a bad one fails before any episode
         own = [c for spec, c in configs.items() if spec.endswith(".npz") or spec == "learned"]
@@ -233,8 +285,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"compare_policies: {exc}", file=sys.stderr)
         return 2
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    variants: list[Variant] = [(spec, lag, args.below, timings.get(lag)) for spec in args.policies
-                               for lag in (None, *args.lags)]
+    variants = [Variant(spec, args.below, lag, timings.get(lag)) for spec in args.policies
+                for lag in (None, *args.lags)]
+    variants += [Variant(spec, args.below, toward=args.toward, fraction=x) for spec in args.policies
+                 for x in args.fractions]
     results = compare(variants, config, seeds, min(args.workers, len(seeds) * len(variants)))
     rows = {spec: summary([stats for stats, _ in runs]) for spec, runs in results.items()}
     width = max(len(s) for s in rows)
