@@ -87,12 +87,15 @@ class Graph:
 
     def start_stack(self, clock: str = "lockstep", lockstep_timeout: float = 0.5, *controller_params: str,
                     policy_params: tuple[str, ...] = (), real_time_factor: float = 1.0,
-                    composed_chain: bool = False) -> None:
+                    composed_chain: bool = False, heard_by: tuple | None = None) -> None:
         """The graph a1_bringup.graph describes for ``clock`` with the sim bridge (and any fault
         relays); ``controller_params`` and ``policy_params`` are extra ``name:=value`` (with
         ``embedded_estimator:=true`` no state_estimator process starts, and the controller
         publishes /odom); ``composed_chain``: bridge, estimator and controller as one
-        control_chain process."""
+        control_chain process. ``heard_by=(executor, node)``: the simulation holds t = 0
+        (``start_paused``) until ``node`` is matched with the graph (``wait_until_matched``), so a
+        test node sees the run from its start and its /cmd_vel counts from t = 0; a busy graph
+        can take seconds of its run to match a new participant."""
         self.realtime = clock == "realtime"
         embedded = self.realtime or "embedded_estimator:=true" in controller_params
         self.sim_time = "true" if clock == "lockstep" else "false"
@@ -106,9 +109,14 @@ class Graph:
                      *[a for key, value in params.items() for a in ("-p", f"{key}:={value}")]]
             self.start(name, "fault_injection", "fault_relay", *relay)
         bridge = {"sim_bridge": {"lockstep_timeout": lockstep_timeout, "real_time_factor": real_time_factor,
-                                 "flight_recorder_dir": self.log_dir}}  # a fall: its last seconds, see fall_records
+                                 "flight_recorder_dir": self.log_dir,  # a fall: its last seconds, see fall_records
+                                 "start_paused": heard_by is not None}}
         self._start_described(describe(clock, "sim", embedded_estimator=embedded), bridge, controller_params,
                               policy_params, composed_chain)
+        if heard_by is not None:
+            executor, node = heard_by
+            wait_until_matched(executor, node)
+            set_sim_paused(executor, node, False, self.namespace)
 
     def start_hil(self, clock: str = "lockstep", packet_loss: float = 0.0, lockstep_timeout: float = 0.5,
                   composed_chain: bool = False, policy_params: tuple[str, ...] = (),
@@ -207,10 +215,25 @@ def damping_onset(joints: list[tuple[float, np.ndarray, np.ndarray]], after: flo
     return None
 
 
-def set_sim_paused(executor, node, paused: bool) -> float:
-    """Pause or resume the sim bridge (its ~/pause service), e.g. while a killed node restarts;
-    returns the sim time it holds at or resumes from [s] (from the service's reply)."""
-    client = node.create_client(SetBool, "/sim_bridge/pause")
+# Endpoints every rclpy node has, which no node of the graph need match.
+_HOUSEKEEPING_TOPICS = {"/rosout", "/parameter_events", "/clock"}
+
+
+def wait_until_matched(executor, node, timeout: float = 60.0) -> None:
+    """Spin until each of ``node``'s subscriptions has a publisher and each of its publishers as
+    many subscribers as ``node`` has discovered (at least one); fail naming the unmatched topics."""
+    def unmatched() -> list[str]:
+        missing = [s.topic_name for s in node.subscriptions
+                   if s.topic_name not in _HOUSEKEEPING_TOPICS and s.get_publisher_count() == 0]
+        return missing + [p.topic_name for p in node.publishers if p.topic_name not in _HOUSEKEEPING_TOPICS
+                          and p.get_subscription_count() < max(1, node.count_subscribers(p.topic_name))]
+    assert spin_until(executor, lambda: not unmatched(), timeout), f"{node.get_name()}: not matched on {unmatched()}"
+
+
+def set_sim_paused(executor, node, paused: bool, namespace: str = "") -> float:
+    """Pause or resume the sim bridge (its ~/pause service; in ``namespace``), e.g. while a killed
+    node restarts; returns the sim time it holds at or resumes from [s] (from the service's reply)."""
+    client = node.create_client(SetBool, f"{namespace}/sim_bridge/pause")
     assert client.wait_for_service(timeout_sec=10.0)
     future = client.call_async(SetBool.Request(data=paused))
     assert spin_until(executor, future.done, 10.0) and future.result().success
