@@ -64,7 +64,8 @@ def test_by_speed_splits_each_return_into_its_bands_against_the_first_policy(two
         assert r["return_minus_first"] == pytest.approx(r["return"] - first[tuple(r["band"])], abs=1e-9)
 
 
-def test_a_blend_moves_the_low_speed_gait_toward_the_other_policys_along_the_shorter_arc(two_policies, capsys):
+def test_a_blend_moves_the_low_speed_gait_toward_the_other_policys_along_the_shorter_arc(two_policies, capsys,
+                                                                                          tmp_path):
     from gait_policy_node.compare_policies import blend, with_low_speed_blend
 
     _, (a, b) = two_policies
@@ -79,10 +80,14 @@ def test_a_blend_moves_the_low_speed_gait_toward_the_other_policys_along_the_sho
     whole_way = with_low_speed_blend(pa, pb, 1.0, below=1.0)
     assert whole_way(slow).stepping_frequency == pytest.approx(pb(slow).stepping_frequency)
     assert whole_way(fast) == pa(fast)
+    plot = tmp_path / "by_speed.png"
     assert main([str(a), "--seeds", "1", "--workers", "1", "--toward", str(b), "--fractions", "0", "1",
-                 "--below", "5"]) == 0
+                 "--below", "5", "--by-speed", "--plot", str(plot)]) == 0
     rows = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["policies"]
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert rows[f"{a} -> {b} x0 below 5 m/s"]["return_mean"] == pytest.approx(rows[str(a)]["return_mean"], rel=1e-12)
+    assert main([str(a), "--plot", str(plot)]) == 2
+    assert "--plot needs --by-speed" in capsys.readouterr().err
     assert main([str(a), "--toward", str(b)]) == 2
     assert "--toward and --fractions go together" in capsys.readouterr().err
     assert main([str(a), "--toward", str(b), "--fractions", "1.5"]) == 2

@@ -2,7 +2,7 @@
 
     compare_policies POLICY [POLICY ...] [--config RUN/config.yaml] [--seeds N] [--first-seed S]
                      [--workers N] [--lags DEG ... --below V [--timing BEST.csv ...]]
-                     [--toward POLICY --fractions X ... --below V] [--by-speed]
+                     [--toward POLICY --fractions X ... --below V] [--by-speed [--plot PNG]]
 
 train_es keeps as "best" the mean whose one evaluation episode (seed 0) scored highest, so two
 candidates an evaluation apart may differ by no more than one episode's luck. This runs every
@@ -23,7 +23,8 @@ gait space from one optimum to another, i.e. whether a valley lies between them.
 also splits each policy's return by commanded-speed band (gait_analysis.SPEED_BANDS): per band the
 policy steps, the return earned there and its speed and energy penalties (means over the seeds),
 and how far each policy's band return is from the first's, beside the seed-to-seed spread: where
-along the episode one gait earns more than another. On a fixed profile (ramp, steps, constant) an
+along the episode one gait earns more than another (``--plot PNG`` draws it, and the ``--toward``
+paths). On a fixed profile (ramp, steps, constant) an
 episode does not depend on its seed, so one seed does; the spread matters for ``random``. Ends with
 one JSON line of the figures.
 """
@@ -34,12 +35,15 @@ import argparse
 import csv
 import json
 import os
+import re
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from a1_common.config import ConfigError, require_range
+from a1_common.files import save_png_atomically
 from convex_mpc_node.gait import GaitParams
 
 from gait_policy_node.env import GaitEnv, StepInfo
@@ -211,6 +215,65 @@ def by_speed(results: dict[str, list[tuple[EpisodeStats, np.ndarray]]]) -> dict[
     return out
 
 
+def short_label(label: str) -> str:
+    """A label with each ``<folder>/policy.npz`` or ``<folder>/best_policy.npz`` named by its folder."""
+    return re.sub(r"(?:\S*/)?([^/\s]+)/(?:best_)?policy\.npz", r"\1", label)
+
+
+def plot_by_speed(rows: dict[str, list[dict]], variants: list[Variant], path: Path, split: float = 1.0) -> None:
+    """Each policy's band return minus the first policy's, as bars per commanded-speed band; with
+    ``--toward`` variants a second panel: the return change along the way, below and above
+    ``split`` [m/s] and in all, against the fraction. PNG ``path``, replaced atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = [v for v in variants if v.toward is not None]
+    plain = [label(v) for v in variants if v.toward is None][1:]
+    fig, axes = plt.subplots(1, 2 if paths else 1, figsize=(13 if paths else 8, 4.8), squeeze=False)
+    bands = [f"{lo:g}-{hi:g}" if hi < 3.0 else f"{lo:g}" for lo, hi in SPEED_BANDS]
+    width = 0.8 / max(len(plain), 1)
+    for j, spec in enumerate(plain):
+        by_band = {tuple(r["band"]): r["return_minus_first"] for r in rows[spec]}
+        axes[0, 0].bar(np.arange(len(bands)) + (j - (len(plain) - 1) / 2) * width,
+                       [by_band.get(b, 0.0) for b in SPEED_BANDS], width, label=short_label(spec))
+    axes[0, 0].axhline(0.0, color="k", lw=0.8)
+    axes[0, 0].set_xticks(np.arange(len(bands)), bands)
+    axes[0, 0].set_xlabel("commanded speed band [m/s]")
+    axes[0, 0].set_ylabel(f"episode return in the band, minus {short_label(label(variants[0]))}'s")
+    axes[0, 0].grid(alpha=0.3, axis="y")
+    if plain:
+        axes[0, 0].legend(fontsize=8)
+    if paths:
+        ax = axes[0, 1]
+        for spec in dict.fromkeys(v.spec for v in paths):
+            own = {tuple(r["band"]): r["return"] for r in rows[spec]}
+            ways = sorted((v for v in paths if v.spec == spec), key=lambda v: v.fraction)
+            parts = {"below": [], "above": [], "all": []}
+            for v in ways:
+                diff = [(r["band"][0], r["return"] - own.get(tuple(r["band"]), 0.0)) for r in rows[label(v)]]
+                parts["below"].append(sum(d for lo, d in diff if lo < split))
+                parts["above"].append(sum(d for lo, d in diff if lo >= split))
+                parts["all"].append(sum(d for _, d in diff))
+            fractions = [0.0] + [v.fraction for v in ways]
+            name = short_label(spec)
+            line = ax.plot(fractions, [0.0] + parts["below"], "o-", label=f"{name}: below {split:g} m/s")[0]
+            ax.plot(fractions, [0.0] + parts["above"], "s:", color=line.get_color(), label=f"{name}: above")
+            ax.plot(fractions, [0.0] + parts["all"], "^--", color=line.get_color(), alpha=0.6, label=f"{name}: episode")
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.set_xlabel(f"fraction of the way to {short_label(paths[0].toward)}'s gait (below {paths[0].below:g} m/s)")
+        ax.set_ylabel("return minus the policy's own")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("compare_policies: return by commanded speed")
+    fig.tight_layout()
+    try:
+        save_png_atomically(fig, path)
+    finally:
+        plt.close(fig)
+
+
 def format_by_speed(rows: dict[str, list[dict]]) -> str:
     lines = []
     for spec, bands in rows.items():
@@ -253,6 +316,7 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="fractions of the way to --toward's gait, each in [0, 1]")
     parser.add_argument("--by-speed", action="store_true",
                         help="also split each return by commanded-speed band, against the first policy's")
+    parser.add_argument("--plot", type=Path, metavar="PNG", help="with --by-speed: draw it (and any --toward paths)")
     return parser.parse_args(argv)
 
 
@@ -271,6 +335,8 @@ def main(argv: list[str] | None = None) -> int:
             lag_family_offsets(lag)  # ConfigError naming the range
         if args.timing and not args.lags:
             raise ConfigError("--timing applies to --lags variants: give --lags too")
+        if args.plot is not None and (not args.by_speed or args.plot.suffix != ".png"):
+            raise ConfigError(f"--plot needs --by-speed and a .png path, got {args.plot}")
         if bool(args.toward) != bool(args.fractions):
             raise ConfigError("--toward and --fractions go together: give both or neither")
         for fraction in args.fractions:
@@ -302,6 +368,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.by_speed:
         figures["by_speed"] = by_speed(results)
         print(format_by_speed(figures["by_speed"]))
+        if args.plot is not None:
+            plot_by_speed(figures["by_speed"], variants, args.plot)
+            print(f"wrote {args.plot}")
     print(json.dumps(figures))
     return 0
 
