@@ -31,6 +31,7 @@ import json
 
 import numpy as np
 from a1_common.command import VelocityCommand
+from a1_common.config import ConfigError
 from convex_mpc_node.controller import load_controller_config
 from convex_mpc_node.gait import GaitParams, gait_for_speed, load_hand_tuned_gaits
 from gait_policy_node.policy import make_policy
@@ -100,7 +101,8 @@ def main() -> None:
     parser.add_argument("--latencies-ms", default="0,16,20,24,30", help="sustained command latencies [ms]")
     parser.add_argument("--stalls-ms", default="20,40,60", help="controller stalls [ms]")
     parser.add_argument("--policy", default="scheduled",
-                        help="scheduled (the hand-tuned gaits: rapid trot at 1.5 m/s) | learned | a policy .npz")
+                        help="scheduled (the hand-tuned gaits by speed: rapid trot at 1.5 m/s) | learned | "
+                             "a policy .npz | a hand-tuned gait name (walk, slow_trot, rapid_trot, fly_trot)")
     args = parser.parse_args()
 
     def numbers(text: str, name: str, low: float, high: float, cast=float) -> list:
@@ -117,7 +119,10 @@ def main() -> None:
     rows = [(period, weight) for period in periods for weight in force_weights]
     latencies = numbers(args.latencies_ms, "--latencies-ms", 0.0, 100.0)
     stalls = numbers(args.stalls_ms, "--stalls-ms", 0.0, 100.0)
-    schedule = gait_schedule(args.policy)
+    try:
+        schedule = gait_schedule(args.policy)
+    except (ConfigError, OSError) as exc:
+        parser.error(f"--policy: {exc}")
     print(f"gait policy {args.policy!r}, {schedule(FAULT_AT, VelocityCommand(vx=SPEED))} at {SPEED} m/s, ramped "
           f"to it; fault from {FAULT_AT} s for {HOLD} s; 'up' = survived")
     results = {

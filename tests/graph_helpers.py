@@ -16,6 +16,8 @@ import numpy as np
 from a1_bringup.graph import composed, describe, namespace_remaps
 from a1_common.config import load_node_parameters
 from a1_common.robot import a1
+from rclpy.executors import Executor
+from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import spin_until
 from std_srvs.srv import SetBool
@@ -87,7 +89,7 @@ class Graph:
 
     def start_stack(self, clock: str = "lockstep", lockstep_timeout: float = 0.5, *controller_params: str,
                     policy_params: tuple[str, ...] = (), real_time_factor: float = 1.0,
-                    composed_chain: bool = False, heard_by: tuple | None = None) -> None:
+                    composed_chain: bool = False, heard_by: tuple[Executor, Node] | None = None) -> None:
         """The graph a1_bringup.graph describes for ``clock`` with the sim bridge (and any fault
         relays); ``controller_params`` and ``policy_params`` are extra ``name:=value`` (with
         ``embedded_estimator:=true`` no state_estimator process starts, and the controller
@@ -139,6 +141,8 @@ class Graph:
         """Start a graph description with the ``bridge`` nodes' extra parameters and the controller's
         and policy's ``name:=value`` ones; ``composed_chain``: in the composed form; ``after``:
         process name -> what to run once it is started, before the next one starts."""
+        started = [n.name for n in (composed(nodes) if composed_chain else nodes)]
+        assert set(after or {}) <= set(started), f"after: {sorted(set(after or {}) - set(started))} not in {started}"
         extra = {**bridge, "convex_mpc": dict(p.split(":=", 1) for p in controller_params),
                  "gait_policy": dict(p.split(":=", 1) for p in policy_params)}
         for node in nodes:
@@ -215,18 +219,32 @@ def damping_onset(joints: list[tuple[float, np.ndarray, np.ndarray]], after: flo
     return None
 
 
-# Endpoints every rclpy node has, which no node of the graph need match.
-_HOUSEKEEPING_TOPICS = {"/rosout", "/parameter_events", "/clock"}
+# rclpy's own endpoints of a node (/parameter_events always, /clock with use_sim_time): not the test's.
+_HOUSEKEEPING_TOPICS = {"/parameter_events", "/clock"}
+# The graph's nodes that must hear a test's /cmd_vel before its run counts (a1_bringup.graph: the
+# controller ramps to it, the gait policy observes it).
+CMD_VEL_SUBSCRIBERS = ("convex_mpc", "gait_policy")
 
 
-def wait_until_matched(executor, node, timeout: float = 60.0) -> None:
-    """Spin until each of ``node``'s subscriptions has a publisher and each of its publishers as
-    many subscribers as ``node`` has discovered (at least one); fail naming the unmatched topics."""
+def wait_until_matched(executor, node: Node, timeout: float = 60.0,
+                       subscribers: dict[str, tuple[str, ...]] | None = None) -> None:
+    """Spin until each of ``node``'s subscriptions has a matched publisher and each of its
+    publishers is matched with a subscriber, and with those of the nodes ``subscribers`` names for
+    its topic (relative name -> node names; default /cmd_vel: CMD_VEL_SUBSCRIBERS); fail naming
+    the unmatched topics."""
+    wanted = {"cmd_vel": CMD_VEL_SUBSCRIBERS} if subscribers is None else subscribers
+
     def unmatched() -> list[str]:
         missing = [s.topic_name for s in node.subscriptions
                    if s.topic_name not in _HOUSEKEEPING_TOPICS and s.get_publisher_count() == 0]
-        return missing + [p.topic_name for p in node.publishers if p.topic_name not in _HOUSEKEEPING_TOPICS
-                          and p.get_subscription_count() < max(1, node.count_subscribers(p.topic_name))]
+        for p in node.publishers:
+            if p.topic_name in _HOUSEKEEPING_TOPICS:
+                continue
+            names = wanted.get(p.topic_name.rsplit("/", 1)[-1], ())
+            heard = {i.node_name for i in node.get_subscriptions_info_by_topic(p.topic_name)}
+            if p.get_subscription_count() < max(1, len(names)) or not set(names) <= heard:
+                missing.append(p.topic_name)
+        return missing
     assert spin_until(executor, lambda: not unmatched(), timeout), f"{node.get_name()}: not matched on {unmatched()}"
 
 

@@ -86,12 +86,27 @@ def test_a_blend_moves_the_low_speed_gait_toward_the_other_policys_along_the_sho
     rows = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["policies"]
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert rows[f"{a} -> {b} x0 below 5 m/s"]["return_mean"] == pytest.approx(rows[str(a)]["return_mean"], rel=1e-12)
+    assert main([str(a), "--fractions", "0.5", "0.5", "--toward", str(b)]) == 2
+    assert "--fractions: each value once" in capsys.readouterr().err
+    assert main([str(a), str(a)]) == 2
+    assert "POLICY: each value once" in capsys.readouterr().err
+    assert main([str(a), "--by-speed", "--plot", str(tmp_path / "missing" / "p.png")]) == 2
+    assert "does not exist" in capsys.readouterr().err
     assert main([str(a), "--plot", str(plot)]) == 2
     assert "--plot needs --by-speed" in capsys.readouterr().err
     assert main([str(a), "--toward", str(b)]) == 2
     assert "--toward and --fractions go together" in capsys.readouterr().err
     assert main([str(a), "--toward", str(b), "--fractions", "1.5"]) == 2
     assert "--fractions must be in [0.0, 1.0], got 1.5" in capsys.readouterr().err
+
+
+def test_every_commanded_speed_of_a_profile_has_its_band():
+    from gait_policy_node.compare_policies import band_of
+    from gait_policy_node.gait_analysis import SPEED_BANDS
+
+    assert band_of(0.0) == 0 and band_of(0.5) == 1 and band_of(2.49) == 4
+    assert band_of(SPEED_BANDS[-1][1]) == len(SPEED_BANDS) - 1  # the top speed a profile may reach
+    assert band_of(SPEED_BANDS[-1][1] + 0.01) is None
 
 
 def test_bad_arguments_name_what_is_wrong(two_policies, capsys, tmp_path):

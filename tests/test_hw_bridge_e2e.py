@@ -39,8 +39,8 @@ def first_damped_tick(joints: list[tuple[float, np.ndarray, np.ndarray]], after:
 @pytest.fixture
 def hil(request):
     """The e2e graph fixture (process graph, watcher node, executor), the latest /diagnostics by
-    name, and ``start(clock, **start_hil arguments)``: the HIL graph, its robot held (lockstep:
-    nothing talks to it, so it does not tick) until the watcher hears its ground truth. A busy
+    name, and ``start(clock, **start_hil arguments)``: the HIL graph; in lockstep its robot is held
+    (nothing talks to it, so it does not tick) until the watcher hears its ground truth. A busy
     lockstep graph can take seconds to match a new subscriber, and these tests look at t = 0 on."""
     g, watcher, executor = request.getfixturevalue("graph")
     watcher.watch_joints_and_commands()
@@ -53,7 +53,8 @@ def hil(request):
         assert spin_until(executor, watcher.hears_ground_truth, 30.0), "virtual_a1's ground truth never matched"
 
     def start(clock: str, **kwargs) -> None:
-        g.start_hil(clock, robot_started=robot_heard, **kwargs)
+        # In realtime the robot ticks on its own: waiting would only spend its robot time.
+        g.start_hil(clock, robot_started=robot_heard if clock == "lockstep" else None, **kwargs)
 
     watcher.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
     return g, watcher, executor, diagnostics, start

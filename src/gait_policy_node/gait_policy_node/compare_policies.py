@@ -24,8 +24,8 @@ also splits each policy's return by commanded-speed band (gait_analysis.SPEED_BA
 policy steps, the return earned there and its speed and energy penalties (means over the seeds),
 and how far each policy's band return is from the first's, beside the seed-to-seed spread: where
 along the episode one gait earns more than another (``--plot PNG`` draws it, and the ``--toward``
-paths). On a fixed profile (ramp, steps, constant) an
-episode does not depend on its seed, so one seed does; the spread matters for ``random``. Ends with
+paths). On flat ground without sensor noise and a fixed profile (ramp, steps, constant) an episode
+does not depend on its seed, so one seed does; the spread matters for terrain, noise and ``random``. Ends with
 one JSON line of the figures.
 """
 
@@ -146,8 +146,11 @@ BAND_COLUMNS = ("policy_steps", "return", "speed_penalty", "energy_penalty")
 
 
 def band_of(speed: float) -> int | None:
-    """Index of the SPEED_BANDS band holding commanded speed ``speed`` [m/s], None outside them."""
-    return next((i for i, (lo, hi) in enumerate(SPEED_BANDS) if lo <= speed < hi), None)
+    """Index of the SPEED_BANDS band holding commanded speed ``speed`` [m/s] (the last band's upper
+    edge included: profiles reach it), None outside them."""
+    last = len(SPEED_BANDS) - 1
+    return next((i for i, (lo, hi) in enumerate(SPEED_BANDS) if lo <= speed < hi or (i == last and speed == hi)),
+                None)
 
 
 def _episode(variant: Variant, config_dict: dict, seed: int) -> tuple[EpisodeStats, np.ndarray]:
@@ -220,10 +223,11 @@ def short_label(label: str) -> str:
     return re.sub(r"(?:\S*/)?([^/\s]+)/(?:best_)?policy\.npz", r"\1", label)
 
 
-def plot_by_speed(rows: dict[str, list[dict]], variants: list[Variant], path: Path, split: float = 1.0) -> None:
+def plot_by_speed(rows: dict[str, list[dict]], variants: list[Variant], path: Path, below: float = 1.25) -> None:
     """Each policy's band return minus the first policy's, as bars per commanded-speed band; with
-    ``--toward`` variants a second panel: the return change along the way, below and above
-    ``split`` [m/s] and in all, against the fraction. PNG ``path``, replaced atomically."""
+    ``--toward`` variants a second panel: the return change along the way against the fraction, in
+    the bands wholly under ``below`` [m/s] (where the gait changed), in the others, and in all.
+    PNG ``path``, replaced atomically."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -232,7 +236,7 @@ def plot_by_speed(rows: dict[str, list[dict]], variants: list[Variant], path: Pa
     paths = [v for v in variants if v.toward is not None]
     plain = [label(v) for v in variants if v.toward is None][1:]
     fig, axes = plt.subplots(1, 2 if paths else 1, figsize=(13 if paths else 8, 4.8), squeeze=False)
-    bands = [f"{lo:g}-{hi:g}" if hi < 3.0 else f"{lo:g}" for lo, hi in SPEED_BANDS]
+    bands = [f"{lo:g}-{hi:g}" for lo, hi in SPEED_BANDS]
     width = 0.8 / max(len(plain), 1)
     for j, spec in enumerate(plain):
         by_band = {tuple(r["band"]): r["return_minus_first"] for r in rows[spec]}
@@ -247,6 +251,7 @@ def plot_by_speed(rows: dict[str, list[dict]], variants: list[Variant], path: Pa
         axes[0, 0].legend(fontsize=8)
     if paths:
         ax = axes[0, 1]
+        split = max((hi for _, hi in SPEED_BANDS if hi <= below + 1e-9), default=0.0)
         for spec in dict.fromkeys(v.spec for v in paths):
             own = {tuple(r["band"]): r["return"] for r in rows[spec]}
             ways = sorted((v for v in paths if v.spec == spec), key=lambda v: v.fraction)
@@ -254,12 +259,12 @@ def plot_by_speed(rows: dict[str, list[dict]], variants: list[Variant], path: Pa
             for v in ways:
                 diff = [(r["band"][0], r["return"] - own.get(tuple(r["band"]), 0.0)) for r in rows[label(v)]]
                 parts["below"].append(sum(d for lo, d in diff if lo < split))
-                parts["above"].append(sum(d for lo, d in diff if lo >= split))
+                parts["above"].append(sum(d for lo, d in diff if lo >= split))  # gait as its own above `below`
                 parts["all"].append(sum(d for _, d in diff))
             fractions = [0.0] + [v.fraction for v in ways]
             name = short_label(spec)
-            line = ax.plot(fractions, [0.0] + parts["below"], "o-", label=f"{name}: below {split:g} m/s")[0]
-            ax.plot(fractions, [0.0] + parts["above"], "s:", color=line.get_color(), label=f"{name}: above")
+            line = ax.plot(fractions, [0.0] + parts["below"], "o-", label=f"{name}: bands below {split:g} m/s")[0]
+            ax.plot(fractions, [0.0] + parts["above"], "s:", color=line.get_color(), label=f"{name}: bands above")
             ax.plot(fractions, [0.0] + parts["all"], "^--", color=line.get_color(), alpha=0.6, label=f"{name}: episode")
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set_xlabel(f"fraction of the way to {short_label(paths[0].toward)}'s gait (below {paths[0].below:g} m/s)")
@@ -275,6 +280,7 @@ def plot_by_speed(rows: dict[str, list[dict]], variants: list[Variant], path: Pa
 
 
 def format_by_speed(rows: dict[str, list[dict]]) -> str:
+    """by_speed's rows as one table per policy."""
     lines = []
     for spec, bands in rows.items():
         lines.append(f"\n{spec}: return by commanded-speed band (means over the seeds)")
@@ -337,6 +343,11 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError("--timing applies to --lags variants: give --lags too")
         if args.plot is not None and (not args.by_speed or args.plot.suffix != ".png"):
             raise ConfigError(f"--plot needs --by-speed and a .png path, got {args.plot}")
+        if args.plot is not None and not args.plot.parent.is_dir():
+            raise ConfigError(f"--plot: folder {args.plot.parent} does not exist")
+        for name, values in (("POLICY", args.policies), ("--fractions", args.fractions), ("--lags", args.lags)):
+            if len(set(values)) != len(values):
+                raise ConfigError(f"{name}: each value once, got {values}")
         if bool(args.toward) != bool(args.fractions):
             raise ConfigError("--toward and --fractions go together: give both or neither")
         for fraction in args.fractions:
@@ -369,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
         figures["by_speed"] = by_speed(results)
         print(format_by_speed(figures["by_speed"]))
         if args.plot is not None:
-            plot_by_speed(figures["by_speed"], variants, args.plot)
+            plot_by_speed(figures["by_speed"], variants, args.plot, below=args.below)
             print(f"wrote {args.plot}")
     print(json.dumps(figures))
     return 0
