@@ -48,7 +48,7 @@ from convex_mpc_node.gait import GaitParams
 
 from gait_policy_node.env import GaitEnv, StepInfo
 from gait_policy_node.eval_policy import ObservationPolicy, resolve_policy
-from gait_policy_node.gait_analysis import SPEED_BANDS
+from gait_policy_node.gait_analysis import SPEED_BANDS, shortest_arc
 from gait_policy_node.rollout_workers import EpisodeStats, run_episode
 from gait_policy_node.sweep_gaits import lag_family_offsets, lag_name
 from gait_policy_node.train_config import TrainConfig, load_train_config, train_config_from_mapping
@@ -115,7 +115,7 @@ def with_low_speed_lag(policy: ObservationPolicy, lag_deg: float, below: float,
 def blend(a: GaitParams, b: GaitParams, fraction: float) -> GaitParams:
     """The gait ``fraction`` of the way from ``a`` to ``b``: f and p_swing linearly, each phase
     offset along the shorter arc [rad]."""
-    arcs = np.angle(np.exp(1j * (np.asarray(b.phase_offsets) - np.asarray(a.phase_offsets))))
+    arcs = shortest_arc(a.phase_offsets, b.phase_offsets)
     return GaitParams(a.stepping_frequency + fraction * (b.stepping_frequency - a.stepping_frequency),
                       a.swing_ratio + fraction * (b.swing_ratio - a.swing_ratio),
                       tuple(float(o) for o in np.mod(np.asarray(a.phase_offsets) + fraction * arcs, 2 * np.pi)))

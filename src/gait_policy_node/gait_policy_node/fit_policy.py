@@ -24,6 +24,7 @@ from a1_common.config import ConfigError
 from convex_mpc_node.gait import GaitParams
 
 from gait_policy_node.compare_policies import load_timing, with_low_speed_lag
+from gait_policy_node.gait_analysis import shortest_arc
 from gait_policy_node.learned_policy import ACTION_SIZE, NetworkPolicy, encode_action, load_policy, save_policy
 from gait_policy_node.train_config import ProfileConfig
 
@@ -78,8 +79,7 @@ def lag_targets(policy: NetworkPolicy, observations: np.ndarray, lag_deg: float,
 
 
 def _offset_error_deg(a: GaitParams, b: GaitParams) -> float:
-    diff = np.angle(np.exp(1j * (np.array(a.phase_offsets) - np.array(b.phase_offsets))))
-    return float(np.degrees(np.max(np.abs(diff))))
+    return float(np.degrees(np.max(np.abs(shortest_arc(b.phase_offsets, a.phase_offsets)))))
 
 
 def fit_report(fitted: NetworkPolicy, target, observations: np.ndarray, below: float) -> dict[str, float]:

@@ -26,8 +26,14 @@ OFFSET_TOLERANCE = 0.35  # [rad], about 20 degrees
 FLIGHT_SWING_RATIO = 0.5
 
 
+def shortest_arc(start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """Signed angle from ``start`` to ``end`` along the shorter way round, in (-pi, pi] [rad]:
+    phase offsets 0.1 and 6.2 rad are 0.18 apart, not 6.1."""
+    return np.angle(np.exp(1j * (np.asarray(end, dtype=float) - np.asarray(start, dtype=float))))
+
+
 def _circular_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.abs(np.angle(np.exp(1j * (np.asarray(a, dtype=float) - np.asarray(b, dtype=float)))))
+    return np.abs(shortest_arc(b, a))
 
 
 def classify_gait(swing_ratio: float, offsets: np.ndarray) -> str:
