@@ -54,11 +54,17 @@ class Graph:
     """Processes in their own sessions, logs under ``log_dir``; ``stop`` ends every one of them.
 
     ``faults`` maps a topic of TOPICS to fault_relay parameters (``name: value``): its publisher
-    is remapped to the relay's input and a relay process injects the faults.
+    is remapped to the relay's input and a relay process injects the faults. ``heard_by=(executor,
+    node)``: ``start_stack`` holds the simulation at t = 0 (``start_paused``) until ``node`` is
+    matched with the graph (``wait_until_matched``), so a test node sees the run from its start and
+    its /cmd_vel counts from t = 0; a busy graph can take seconds of its run to match a new
+    participant.
     """
 
-    def __init__(self, log_dir: Path, faults: dict[str, dict] | None = None, namespace: str = "") -> None:
+    def __init__(self, log_dir: Path, faults: dict[str, dict] | None = None, namespace: str = "",
+                 heard_by: tuple[Executor, Node] | None = None) -> None:
         self.log_dir = log_dir
+        self.heard_by = heard_by
         self.namespace = namespace  # "": the root namespace; else every node runs in it
         self.procs: dict[str, subprocess.Popen] = {}
         self.commands: dict[str, list[str]] = {}
@@ -89,15 +95,12 @@ class Graph:
 
     def start_stack(self, clock: str = "lockstep", lockstep_timeout: float = 0.5, *controller_params: str,
                     policy_params: tuple[str, ...] = (), real_time_factor: float = 1.0,
-                    composed_chain: bool = False, heard_by: tuple[Executor, Node] | None = None) -> None:
+                    composed_chain: bool = False) -> None:
         """The graph a1_bringup.graph describes for ``clock`` with the sim bridge (and any fault
         relays); ``controller_params`` and ``policy_params`` are extra ``name:=value`` (with
         ``embedded_estimator:=true`` no state_estimator process starts, and the controller
         publishes /odom); ``composed_chain``: bridge, estimator and controller as one
-        control_chain process. ``heard_by=(executor, node)``: the simulation holds t = 0
-        (``start_paused``) until ``node`` is matched with the graph (``wait_until_matched``), so a
-        test node sees the run from its start and its /cmd_vel counts from t = 0; a busy graph
-        can take seconds of its run to match a new participant."""
+        control_chain process; held until the graph's ``heard_by`` node is matched, if it has one."""
         self.realtime = clock == "realtime"
         embedded = self.realtime or "embedded_estimator:=true" in controller_params
         self.sim_time = "true" if clock == "lockstep" else "false"
@@ -112,11 +115,11 @@ class Graph:
             self.start(name, "fault_injection", "fault_relay", *relay)
         bridge = {"sim_bridge": {"lockstep_timeout": lockstep_timeout, "real_time_factor": real_time_factor,
                                  "flight_recorder_dir": self.log_dir,  # a fall: its last seconds, see fall_records
-                                 "start_paused": heard_by is not None}}
+                                 "start_paused": self.heard_by is not None}}
         self._start_described(describe(clock, "sim", embedded_estimator=embedded), bridge, controller_params,
                               policy_params, composed_chain)
-        if heard_by is not None:
-            executor, node = heard_by
+        if self.heard_by is not None:
+            executor, node = self.heard_by
             wait_until_matched(executor, node)
             set_sim_paused(executor, node, False, self.namespace)
 
@@ -141,15 +144,19 @@ class Graph:
         """Start a graph description with the ``bridge`` nodes' extra parameters and the controller's
         and policy's ``name:=value`` ones; ``composed_chain``: in the composed form; ``after``:
         process name -> what to run once it is started, before the next one starts."""
-        started = [n.name for n in (composed(nodes) if composed_chain else nodes)]
-        assert set(after or {}) <= set(started), f"after: {sorted(set(after or {}) - set(started))} not in {started}"
+        after = after or {}
         extra = {**bridge, "convex_mpc": dict(p.split(":=", 1) for p in controller_params),
                  "gait_policy": dict(p.split(":=", 1) for p in policy_params)}
         for node in nodes:
             node.params.update({k: str(v) for k, v in extra.get(node.name, {}).items()})
-        for node in composed(nodes) if composed_chain else nodes:
-            self.start(node.name, node.package, node.executable, *node.arguments(CONFIG), nodes=node.nodes)
-            (after or {}).get(node.name, lambda: None)()
+        processes = composed(nodes) if composed_chain else nodes
+        names = [p.name for p in processes]
+        assert set(after) <= set(names), f"after: {sorted(set(after) - set(names))} not in {names}"
+        for process in processes:
+            self.start(process.name, process.package, process.executable, *process.arguments(CONFIG),
+                       nodes=process.nodes)
+            if process.name in after:
+                after[process.name]()
 
     def start_controller(self, *params: str) -> None:
         """The controller as the graph describes it for this graph's clock (after a kill, or next to

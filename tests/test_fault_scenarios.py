@@ -138,10 +138,11 @@ def scenario(tmp_path, rclpy_context, fault_scenarios):
     made: dict = {}
 
     def make(faults: dict | None = None, joints: bool = False, gait: bool = False):
-        made["graph"] = Graph(tmp_path, faults)
         made["probe"] = Probe(rclpy_context, joints, gait)
         made["executor"] = SingleThreadedExecutor(context=rclpy_context)
         made["executor"].add_node(made["probe"])
+        # Each scenario's run starts once the probe is matched with the graph (graph_helpers.Graph).
+        made["graph"] = Graph(tmp_path, faults, heard_by=(made["executor"], made["probe"]))
         return made["graph"], made["probe"], made["executor"]
 
     yield make, fault_scenarios.append
@@ -153,8 +154,7 @@ def scenario(tmp_path, rclpy_context, fault_scenarios):
 
 def start(graph: Graph, clock: str, *controller_params: str, composed_chain: bool = True, **kwargs) -> None:
     """The stack in ``clock`` mode (realtime at REALTIME_FACTOR), with the scenarios' lockstep timeout,
-    by default in the form bring-up starts (``composed_chain``: bridge and controller one process);
-    ``heard_by=(executor, probe)``: the simulation starts once the probe is matched with the graph."""
+    by default in the form bring-up starts (``composed_chain``: bridge and controller one process)."""
     graph.start_stack(clock, 0.05, *controller_params, composed_chain=composed_chain,
                       real_time_factor=REALTIME_FACTOR if clock == "realtime" else 1.0, **kwargs)
 
@@ -210,7 +210,7 @@ def test_topic_fault_keeps_robot_up_and_no_nan_reaches_motors(scenario, name, cl
     make, report = scenario
     _, fault_end, what = RELAY_SCENARIOS[name]
     graph, probe, executor = make(relay_faults(name, clock))
-    start(graph, clock, *EMBEDDED, heard_by=(executor, probe))
+    start(graph, clock, *EMBEDDED)
     end = FAULT_AT + 3.0
     run_until(executor, probe, graph, end)
     recovery = probe.recovery_time(FAULT_AT if fault_end is None else fault_end)
@@ -237,7 +237,7 @@ def test_20ms_command_latency_stays_up_or_goes_to_a_safe_state(scenario, clock):
     fall is watched until then). The report row says which it was and how fast tracking recovered."""
     make, report = scenario
     graph, probe, executor = make(relay_faults(LATENCY, clock))
-    start(graph, clock, *EMBEDDED, heard_by=(executor, probe))
+    start(graph, clock, *EMBEDDED)
     end = FAULT_AT + 3.0
     run_until(executor, probe, graph, end)
     lowest = probe.lowest(1.0)
@@ -273,7 +273,7 @@ def test_qp_failure_for_50_steps_falls_back_and_recovers(scenario, clock):
     tracks 1.5 m/s again within 1.5 s."""
     make, report = scenario
     graph, probe, executor = make()
-    start(graph, clock, *EMBEDDED, heard_by=(executor, probe))
+    start(graph, clock, *EMBEDDED)
     run_until(executor, probe, graph, FAULT_AT)
     set_parameter(executor, probe, "/convex_mpc", "inject_qp_failures", 50)
     injected_at = probe.sim_time()  # the failures start at the first solve after the set, at latest now
@@ -298,8 +298,7 @@ def test_controller_killed_at_1_5_mps_damps_within_50_ms(scenario, clock):
     arrival of the killed controller's last command."""
     make, report = scenario
     graph, probe, executor = make(joints=True)
-    # the controller a process of its own, to kill
-    start(graph, clock, *EMBEDDED, composed_chain=False, heard_by=(executor, probe))
+    start(graph, clock, *EMBEDDED, composed_chain=False)  # the controller a process of its own, to kill
     run_until(executor, probe, graph, FAULT_AT)
     assert probe.lowest(1.0) > FELL_BELOW, f"fell before the fault: base at {probe.lowest(1.0):.3f} m"
     bridge = lambda: probe.diagnostics.get("a1_sim_bridge", {})  # noqa: E731
@@ -337,7 +336,7 @@ def test_estimator_killed_stops_then_safe_stance_then_recovers(scenario):
     never falls."""
     make, report = scenario
     graph, probe, executor = make()
-    graph.start_stack("lockstep", 0.05, heard_by=(executor, probe))
+    graph.start_stack("lockstep", 0.05)
     run_until(executor, probe, graph, FAULT_AT, wall_timeout=480)
     killed_at = kill_with_sim_paused(executor, probe, graph, "state_estimator")
     run_until(executor, probe, graph, killed_at + STOP_WITHIN + 0.3, wall_timeout=480)
@@ -391,7 +390,7 @@ def test_policy_killed_keeps_last_gait_then_hand_tuned(scenario, clock):
     the robot stays up and keeps tracking."""
     make, report = scenario
     graph, probe, executor = make(gait=True)
-    start(graph, clock, *EMBEDDED, policy_params=("policy:=fly_trot",), heard_by=(executor, probe))
+    start(graph, clock, *EMBEDDED, policy_params=("policy:=fly_trot",))
     run_until(executor, probe, graph, FAULT_AT)
     # The sim does not wait for the policy node: on a loaded machine its first gait can come after
     # the stand-up. Kill it only once its gait has been in effect for the 0.5 s the check looks back.

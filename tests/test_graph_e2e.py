@@ -96,10 +96,10 @@ class Watcher(Node):
 
 @pytest.fixture
 def graph(tmp_path, rclpy_context):
-    g = Graph(tmp_path)
     watcher = Watcher(rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(watcher)
+    g = Graph(tmp_path, heard_by=(executor, watcher))  # each graph test's run starts once it is heard
     yield g, watcher, executor
     g.stop()
     executor.shutdown()
@@ -115,16 +115,16 @@ def test_two_namespaced_lockstep_graphs_walk_side_by_side(tmp_path, rclpy_contex
     the root namespace."""
     speeds = {"/a1_1": 0.5, "/a1_2": 1.0}
     composed_forms = {"/a1_1": True, "/a1_2": False}
-    graphs = {ns: Graph(tmp_path / ns.strip("/"), namespace=ns) for ns in speeds}
     watchers = {ns: Watcher(rclpy_context, namespace=ns) for ns in speeds}
     executor = SingleThreadedExecutor(context=rclpy_context)
     for ns, watcher in watchers.items():
         executor.add_node(watcher)
         watcher.speed = speeds[ns]
+    graphs = {ns: Graph(tmp_path / ns.strip("/"), namespace=ns, heard_by=(executor, watchers[ns])) for ns in speeds}
     try:
         for ns, g in graphs.items():
             (tmp_path / ns.strip("/")).mkdir()
-            g.start_stack("lockstep", 0.5, composed_chain=composed_forms[ns], heard_by=(executor, watchers[ns]))
+            g.start_stack("lockstep", 0.5, composed_chain=composed_forms[ns])
         assert sorted(graphs["/a1_1"].procs) == ["control_chain", "gait_policy"]
         for ns, g in graphs.items():
             run_until(executor, watchers[ns], g, 6.5, wall_timeout=400)
@@ -155,7 +155,7 @@ def test_cmd_vel_1_mps_walks_within_10_percent(graph, controller_params, compose
     g, watcher, executor = graph
     if composed_chain:
         watcher.watch_joints_and_commands()
-    g.start_stack("lockstep", 0.5, *controller_params, composed_chain=composed_chain, heard_by=(executor, watcher))
+    g.start_stack("lockstep", 0.5, *controller_params, composed_chain=composed_chain)
     watcher.speed = 1.0
     run_until(executor, watcher, g, 7.0, wall_timeout=240)
     if composed_chain:
@@ -199,8 +199,7 @@ def test_reset_after_seconds_of_walking_stands_up_and_walks_again(graph, clock):
     seconds: the sim starts over, and the robot stands up and walks on the next /cmd_vel."""
     g, watcher, executor = graph
     g.start_stack(clock, 0.5, real_time_factor=0.25 if clock == "realtime" else 1.0,
-                  composed_chain=clock == "lockstep",  # composed: the sim is stepped by the executor's poll
-                  heard_by=(executor, watcher))
+                  composed_chain=clock == "lockstep")  # composed: the sim is stepped by the executor's poll
     watcher.speed = 1.0
     run_until(executor, watcher, g, 2.0, wall_timeout=300)  # the controller keeps 0.1 s of sensor steps
     assert watcher.lowest() > 0.18, "fell before the reset"
@@ -221,7 +220,7 @@ def test_paper_acceleration_profile_stays_up(graph):
     g, watcher, executor = graph
     # Composed (the demo's form), embedded estimator: the estimator process and the separate form
     # are covered by the 1 m/s test and the fault scenarios.
-    g.start_stack("lockstep", 0.5, "embedded_estimator:=true", composed_chain=True, heard_by=(executor, watcher))
+    g.start_stack("lockstep", 0.5, "embedded_estimator:=true", composed_chain=True)
     g.start_velocity_ramp(speed=2.5, acceleration=1.0, start_delay=1.5)
     watcher.speed = None  # velocity_command drives
     run_until(executor, watcher, g, 20.0, wall_timeout=480)
@@ -234,7 +233,7 @@ def test_paper_acceleration_profile_stays_up(graph):
 def test_controller_killed_damps_within_50_ms_then_recovers(graph):
     g, watcher, executor = graph
     watcher.watch_joints_and_commands()
-    g.start_stack("lockstep", 0.05, "embedded_estimator:=true", heard_by=(executor, watcher))
+    g.start_stack("lockstep", 0.05, "embedded_estimator:=true")
     watcher.speed = 1.0
     run_until(executor, watcher, g, 3.0, wall_timeout=180)
     watcher.speed = 0.0  # slow to trotting in place, so the damped robot sinks rather than tumbles
