@@ -233,13 +233,11 @@ _HOUSEKEEPING_TOPICS = {"/parameter_events", "/clock"}
 CMD_VEL_SUBSCRIBERS = ("convex_mpc", "gait_policy")
 
 
-def wait_until_matched(executor, node: Node, timeout: float = 60.0,
-                       subscribers: dict[str, tuple[str, ...]] | None = None) -> None:
+def wait_until_matched(executor, node: Node, timeout: float = 60.0) -> None:
     """Spin until each of ``node``'s subscriptions has a matched publisher and each of its
-    publishers is matched with a subscriber, and with those of the nodes ``subscribers`` names for
-    its topic (relative name -> node names; default /cmd_vel: CMD_VEL_SUBSCRIBERS); fail naming
-    the unmatched topics."""
-    wanted = {"cmd_vel": CMD_VEL_SUBSCRIBERS} if subscribers is None else subscribers
+    publishers is matched with a subscriber (a /cmd_vel publisher with CMD_VEL_SUBSCRIBERS'
+    subscriptions, by node name); fail naming the unmatched topics."""
+    wanted = {"cmd_vel": CMD_VEL_SUBSCRIBERS}  # by relative topic name
 
     def unmatched() -> list[str]:
         missing = [s.topic_name for s in node.subscriptions
