@@ -186,7 +186,8 @@ def test_estimate_after_command_controls_on_the_previous_estimate_then_updates(r
         Parameter("embedded_estimator", value=True), Parameter("estimate_after_command", value=True)])
     events = []
     n.pub_command.publish = lambda msg: events.append(("command", wire.decode_motor_command(msg)[1]))
-    n.pub_odom.publish = lambda msg: events.append(("odom", cv.ns_from_stamp(msg.header.stamp)))
+    n.odom.pub_odom.publish = lambda raw: events.append(
+        ("odom", cv.ns_from_stamp(wire.decode_odometry(raw).header.stamp)))
     velocities = []
     control = n.trigger._control
     n.trigger._control = lambda stamp_ns, step_sensors, velocity, *a: (

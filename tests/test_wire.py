@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from a1_common.command import JointCommand, MotorMode
 from a1_interface.contract import BASE_FRAME, IMU_FRAME
-from a1_interface.sensors import SensorReadings
+from a1_interface.sensors import GroundTruth, SensorReadings
+from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Imu, JointState
 
@@ -82,9 +83,47 @@ def test_decoders_read_what_rclpy_serializes(readings: SensorReadings) -> None:
     np.testing.assert_array_equal(contacts.normal_force, readings.foot_force)
 
 
+def _odometry_msg(view: wire.OdometryView) -> Odometry:
+    """The rclpy message of ``view``, field by field (the reference the encoder is checked against)."""
+    msg = Odometry()
+    msg.header.stamp, msg.header.frame_id, msg.child_frame_id = view.header.stamp, view.header.frame_id, \
+        view.child_frame_id
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    p.x, p.y, p.z = view.pose.pose.position
+    q.x, q.y, q.z, q.w = view.pose.pose.orientation
+    t = msg.twist.twist
+    t.linear.x, t.linear.y, t.linear.z = view.twist.twist.linear
+    t.angular.x, t.angular.y, t.angular.z = view.twist.twist.angular
+    msg.pose.covariance, msg.twist.covariance = view.pose.covariance, view.twist.covariance
+    return msg
+
+
+def test_odometry_both_ways() -> None:
+    rng = np.random.default_rng(5)
+    truth = GroundTruth(time=STAMP_NS * 1e-9, base_position=rng.normal(size=3), base_orientation=rng.normal(size=4),
+                        base_linear_velocity=rng.normal(size=3), base_linear_velocity_body=rng.normal(size=3),
+                        base_angular_velocity_body=rng.normal(size=3))
+    encoder = wire.OdometryEncoder()
+    truth_view = wire.ground_truth_odometry(truth, STAMP_NS)
+    assert deserialize_message(encoder.encode(truth_view), Odometry) == cv.ground_truth_msg(
+        truth, cv.stamp_from_ns(STAMP_NS))
+    estimate = wire.odometry_view(STAMP_NS + 2_000_000, "odom_2", "a_longer_child_frame", *(
+        rng.normal(size=n) for n in (3, 4, 3, 3)), rng.normal(size=36), rng.normal(size=36))
+    for view in (estimate, truth_view, estimate):  # other frames: the template is rebuilt, nothing left over
+        raw = encoder.encode(view)
+        assert deserialize_message(raw, Odometry) == _odometry_msg(view)
+        decoded = wire.decode_odometry(serialize_message(_odometry_msg(view)))
+        assert (decoded.header, decoded.child_frame_id) == (view.header, view.child_frame_id)
+        assert decoded.pose.pose == view.pose.pose and decoded.twist.twist == view.twist.twist
+        np.testing.assert_array_equal(decoded.pose.covariance, view.pose.covariance)
+        np.testing.assert_array_equal(decoded.twist.covariance, view.twist.covariance)
+        assert encoder.encode(decoded) == raw
+
+
 @pytest.mark.parametrize(("decode", "msg"), [
     (wire.JointStateDecoder(), JointState(name=NAMES, position=[0.0] * 12)), (wire.decode_imu, Imu()),
-    (wire.decode_foot_contacts, FootContacts()), (wire.decode_motor_command, MotorCommand())])
+    (wire.decode_foot_contacts, FootContacts()), (wire.decode_motor_command, MotorCommand()),
+    (wire.decode_odometry, Odometry())])
 def test_truncated_or_foreign_bytes_are_a_clear_error(decode, msg) -> None:
     whole = serialize_message(msg)
     with pytest.raises(ValueError, match="truncated"):
@@ -120,3 +159,13 @@ def test_sensor_subscriptions_decode_and_drop_malformed_messages_loudly(readings
     assert got == [] and len(node.errors) == 1 and "sensor_msgs/Imu: truncated" in node.errors[0]
     node.callbacks[contract.IMU](imu)
     assert len(got) == 1 and got[0].header.stamp == cv.stamp_from_ns(STAMP_NS)
+
+
+def test_odometry_subscription_decodes_and_drops_malformed_messages_loudly() -> None:
+    node, got = _FakeNode(), []
+    wire.subscribe_odometry(node, None, got.append)
+    raw = serialize_message(Odometry(child_frame_id="base_link"))
+    node.callbacks[contract.ODOM](raw[:50])
+    assert got == [] and len(node.errors) == 1 and "nav_msgs/Odometry: truncated" in node.errors[0]
+    node.callbacks[contract.ODOM](raw)
+    assert len(got) == 1 and got[0].child_frame_id == "base_link"

@@ -5,14 +5,15 @@ share of a node's CPU. Measured on this machine (3 messages a step at 500 Hz, Di
 taking a message costs 165 us of CPU as a Python message and 99 us as bytes; publishing the three
 costs 436 us a step as messages and 185 us as bytes.
 
-What goes over the wire is unchanged: the standard sensor_msgs/JointState, sensor_msgs/Imu and the
-gait_msgs FootContacts and MotorCommand, in the CDR encoding every rmw uses (little endian; each
-primitive aligned to its size, counted from the end of the 4-byte encapsulation header). Any node
-that publishes or subscribes the ordinary messages talks to these. Encoders start from a template
-serialized by rclpy itself and only overwrite the stamp and the numbers; decoders return light
-views with the messages' field names (``msg.header.stamp``, ``msg.position``, ``msg.orientation.x``)
-so that code written for the messages reads them unchanged. tests/test_wire.py checks both
-directions against rclpy's serializer. No rclpy import here beyond rclpy.serialization.
+What goes over the wire is unchanged: the standard sensor_msgs/JointState, sensor_msgs/Imu,
+nav_msgs/Odometry and the gait_msgs FootContacts and MotorCommand, in the CDR encoding every rmw
+uses (little endian; each primitive aligned to its size, counted from the end of the 4-byte
+encapsulation header). Any node that publishes or subscribes the ordinary messages talks to these.
+Encoders start from a template serialized by rclpy itself and only overwrite the stamp and the
+numbers; decoders return light views with the messages' field names (``msg.header.stamp``,
+``msg.position``, ``msg.orientation.x``) so that code written for the messages reads them
+unchanged. tests/test_wire.py checks both directions against rclpy's serializer. No rclpy import
+here beyond rclpy.serialization.
 """
 
 from __future__ import annotations
@@ -24,11 +25,12 @@ from typing import Any, NamedTuple
 import numpy as np
 from a1_common.command import JointCommand
 from builtin_interfaces.msg import Time
+from nav_msgs.msg import Odometry
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Imu, JointState
 
 from a1_interface import contract
-from a1_interface.sensors import SensorReadings
+from a1_interface.sensors import GroundTruth, SensorReadings
 from gait_msgs.msg import FootContacts, MotorCommand
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
@@ -74,6 +76,61 @@ class FootContactsView(NamedTuple):
     header: Header
     contact: np.ndarray  # bool, FR FL RR RL
     normal_force: np.ndarray  # [N]
+
+
+class Pose(NamedTuple):
+    position: Vector3  # [m]
+    orientation: Quaternion
+
+
+class PoseWithCovariance(NamedTuple):
+    pose: Pose
+    covariance: np.ndarray  # (36,) row-major 6x6
+
+
+class Twist(NamedTuple):
+    linear: Vector3  # [m/s]
+    angular: Vector3  # [rad/s]
+
+
+class TwistWithCovariance(NamedTuple):
+    twist: Twist
+    covariance: np.ndarray  # (36,) row-major 6x6
+
+
+class OdometryView(NamedTuple):
+    """nav_msgs/Odometry: pose in ``header.frame_id``, twist in ``child_frame_id`` (REP-105)."""
+
+    header: Header
+    child_frame_id: str
+    pose: PoseWithCovariance
+    twist: TwistWithCovariance
+
+
+_NO_COVARIANCE = np.zeros(36)
+_NO_COVARIANCE.flags.writeable = False
+
+
+def odometry_view(stamp_ns: int, frame_id: str, child_frame_id: str, position, orientation, linear, angular,
+                  pose_covariance: np.ndarray = _NO_COVARIANCE,
+                  twist_covariance: np.ndarray = _NO_COVARIANCE) -> OdometryView:
+    """An OdometryView from vectors: position [m] and orientation (x, y, z, w) in ``frame_id``,
+    linear [m/s] and angular [rad/s] velocity in ``child_frame_id``; covariances row-major 6x6
+    (zeros: unknown, as in a default message)."""
+    stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+    return OdometryView(
+        Header(stamp, frame_id), child_frame_id,
+        PoseWithCovariance(Pose(Vector3(*(float(v) for v in position)), Quaternion(*(float(v) for v in orientation))),
+                           pose_covariance),
+        TwistWithCovariance(Twist(Vector3(*(float(v) for v in linear)), Vector3(*(float(v) for v in angular))),
+                            twist_covariance))
+
+
+def ground_truth_odometry(truth: GroundTruth, stamp_ns: int) -> OdometryView:
+    """The simulator's ground truth as /sim/ground_truth/odom: pose in the world (as ``odom``),
+    twist in ``base_link`` (REP-105); no covariance."""
+    return odometry_view(stamp_ns, contract.ODOM_FRAME, contract.BASE_FRAME, truth.base_position,
+                         truth.base_orientation, truth.base_linear_velocity_body, truth.base_angular_velocity_body)
 
 
 class CdrReader:
@@ -224,6 +281,39 @@ class MotorCommandEncoder:
         return self._template.finish(stamp_ns)
 
 
+class OdometryEncoder:
+    """nav_msgs/Odometry from an OdometryView (a 500 Hz /odom as a Python message costs several
+    times its bytes). The template is rebuilt when the view's frames change."""
+
+    _DOUBLES = 85  # position 3, orientation 4, pose covariance 36, linear 3, angular 3, twist covariance 36
+
+    def __init__(self) -> None:
+        self._frames: tuple[str, str] | None = None
+
+    def _build(self, frame_id: str, child_frame_id: str) -> None:
+        msg = Odometry()
+        msg.header.frame_id, msg.child_frame_id = frame_id, child_frame_id
+        self._template = _Template(msg)
+        reader = CdrReader(self._template.buffer, "Odometry template")
+        reader.header()
+        reader.string_bytes()
+        self._numbers = self._template.f64_view(reader.take(8 * self._DOUBLES, 8), self._DOUBLES)
+        self._frames = (frame_id, child_frame_id)
+
+    def encode(self, odom: OdometryView) -> bytes:
+        if self._frames != (odom.header.frame_id, odom.child_frame_id):
+            self._build(odom.header.frame_id, odom.child_frame_id)
+        numbers, pose, twist = self._numbers, odom.pose.pose, odom.twist.twist
+        numbers[0:3] = pose.position
+        numbers[3:7] = pose.orientation
+        numbers[7:43] = odom.pose.covariance
+        numbers[43:46] = twist.linear
+        numbers[46:49] = twist.angular
+        numbers[49:85] = odom.twist.covariance
+        stamp = odom.header.stamp
+        return self._template.finish(stamp.sec * 1_000_000_000 + stamp.nanosec)
+
+
 class SensorEncoders:
     """A bridge's three sensor messages of one step, in the frames of contract.py."""
 
@@ -273,6 +363,17 @@ def decode_foot_contacts(buffer: bytes) -> FootContactsView:
     return FootContactsView(header, reader.u8(4).astype(bool), reader.f64(4))
 
 
+def decode_odometry(buffer: bytes) -> OdometryView:
+    reader = CdrReader(buffer, "nav_msgs/Odometry")
+    header = reader.header()
+    child_frame_id = reader.string_bytes().decode()
+    numbers = reader.f64(OdometryEncoder._DOUBLES)
+    values = numbers[:7].tolist() + numbers[43:49].tolist()
+    return OdometryView(header, child_frame_id,
+                        PoseWithCovariance(Pose(Vector3(*values[0:3]), Quaternion(*values[3:7])), numbers[7:43]),
+                        TwistWithCovariance(Twist(Vector3(*values[7:10]), Vector3(*values[10:13])), numbers[49:85]))
+
+
 def decode_motor_command(buffer: bytes) -> tuple[JointCommand, int]:
     """The command (unvalidated: the bridge's watchdog validates) and its stamp [ns]."""
     reader = CdrReader(buffer, "gait_msgs/MotorCommand")
@@ -290,20 +391,27 @@ def subscribe_sensors(node, qos, on_joints: Callable[[JointStateView], None], on
 
     In the order the bridges publish them, joint states last, so that within one executor wake-up a
     node that acts on /joint_states finds the same step's IMU and contacts already handed over. A
-    malformed message (never one from an rmw publisher of the type) is dropped with an error in the
-    node's log, never raised into the executor, where it would stop the node.
+    malformed message (never one from an rmw publisher of the type) is dropped and logged.
     """
-    def decoding(decode: Callable[[bytes], Any], handler: Callable[[Any], None]) -> Callable[[bytes], None]:
-        def on_raw(raw: bytes) -> None:
-            try:
-                msg = decode(raw)
-            except ValueError as exc:
-                node.get_logger().error(f"dropped a malformed message: {exc}", throttle_duration_sec=1.0)
-                return
-            handler(msg)
-        return on_raw
-
     for msg_type, topic, decode, handler in ((Imu, contract.IMU, decode_imu, on_imu),
                                              (FootContacts, contract.FOOT_CONTACTS, decode_foot_contacts, on_contacts),
                                              (JointState, contract.JOINT_STATES, JointStateDecoder(), on_joints)):
-        node.create_subscription(msg_type, topic, decoding(decode, handler), qos, raw=True)
+        node.create_subscription(msg_type, topic, _decoding(node, decode, handler), qos, raw=True)
+
+
+def subscribe_odometry(node, qos, on_odom: Callable[[OdometryView], None]) -> None:
+    """Subscribe ``node`` to /odom as bytes, decoded to OdometryView (malformed: dropped, logged)."""
+    node.create_subscription(Odometry, contract.ODOM, _decoding(node, decode_odometry, on_odom), qos, raw=True)
+
+
+def _decoding(node, decode: Callable[[bytes], Any], handler: Callable[[Any], None]) -> Callable[[bytes], None]:
+    """A raw subscription's callback: ``decode`` then ``handler``; a malformed message is dropped
+    with an error in ``node``'s log, never raised into the executor, where it would stop the node."""
+    def on_raw(raw: bytes) -> None:
+        try:
+            msg = decode(raw)
+        except ValueError as exc:
+            node.get_logger().error(f"dropped a malformed message: {exc}", throttle_duration_sec=1.0)
+            return
+        handler(msg)
+    return on_raw

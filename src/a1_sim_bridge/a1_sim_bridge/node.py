@@ -137,6 +137,7 @@ class SimBridgeNode(Node):
         self.pub_contacts = self.create_publisher(FootContacts, contract.FOOT_CONTACTS, CONTROL_QOS)
         self.pub_clock = self.create_publisher(Clock, contract.CLOCK, CONTROL_QOS)
         self.pub_truth = self.create_publisher(Odometry, contract.GROUND_TRUTH, CONTROL_QOS)
+        self._truth_encoder = wire.OdometryEncoder()  # 500 Hz, as bytes like the sensors
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
         # The URDF, once, latched (what robot_state_publisher and RViz read); its joints are /joint_states'.
         self.pub_description = self.create_publisher(String, contract.ROBOT_DESCRIPTION, LATCHED_QOS)
@@ -365,7 +366,7 @@ class SimBridgeNode(Node):
             with self._lock:
                 self._lowest_base_height = min(self._lowest_base_height, float(truth.base_position[2]))
             if self.pub_truth.get_subscription_count():
-                self.pub_truth.publish(cv.ground_truth_msg(truth, cv.stamp_from_ns(stamp_ns)))
+                self.pub_truth.publish(self._truth_encoder.encode(wire.ground_truth_odometry(truth, stamp_ns)))
 
     def _record(self, readings, truth, stamp_ns: int) -> None:
         """One step into the flight recorder; on a fall, its window to ``flight_recorder_dir``."""

@@ -54,7 +54,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from state_estimator_node.estimator import load_estimator_config
 from state_estimator_node.frontend import OdometryFrontend
-from state_estimator_node.node import OdomTransformPublisher
+from state_estimator_node.node import OdometryPublisher
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
@@ -149,11 +149,10 @@ class ConvexMpcNode(Node):
         # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_interface.wire).
         wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints, on_imu=self.trigger.on_imu,
                                on_contacts=self.trigger.on_contacts)
-        if self.frontend is None:
-            self.create_subscription(Odometry, contract.ODOM, self._on_odom, CONTROL_QOS)
+        if self.frontend is None:  # /odom as bytes, decoded to a light view (a1_interface.wire)
+            wire.subscribe_odometry(self, CONTROL_QOS, self._on_odom)
         else:
-            self.pub_odom = self.create_publisher(Odometry, contract.ODOM, CONTROL_QOS)
-            self.tf = OdomTransformPublisher(self)
+            self.odom = OdometryPublisher(self)
         self.create_subscription(Bool, contract.ESTOP, self._on_estop, ESTOP_QOS)
         self.create_service(Trigger, "~/clear_estop", self._on_clear_estop)
         constrain_parameters(self, params, constraints, runtime=RUNTIME_PARAMETERS)
@@ -221,7 +220,7 @@ class ConvexMpcNode(Node):
         self._last_sensor_wall = time.monotonic()
         self.trigger.on_joints(msg)
 
-    def _on_odom(self, msg: Odometry) -> None:
+    def _on_odom(self, msg: Odometry | wire.OdometryView) -> None:
         """/odom's twist is in base_link: rotated to the world frame [m/s] for the trigger."""
         q, tw = msg.pose.pose.orientation, msg.twist.twist.linear
         velocity = quat_to_matrix(np.array([q.x, q.y, q.z, q.w])) @ np.array([tw.x, tw.y, tw.z])
@@ -235,9 +234,7 @@ class ConvexMpcNode(Node):
     def _on_estimate(self, sensors: tuple, estimate) -> None:
         """Embedded estimator: /odom and /tf, every odom_every_steps control steps."""
         if self._steps % self.odom_every == 0:
-            odom = self.frontend.odometry(sensors[0], sensors[1], estimate)
-            self.pub_odom.publish(odom)
-            self.tf.publish(odom)
+            self.odom.publish(self.frontend.odometry(sensors[0], sensors[1], estimate))
 
     def _on_sim_reset(self) -> None:
         self._last_command = None

@@ -1,6 +1,7 @@
 """The estimator's message-level core: one sensor step's messages (JointState, Imu, FootContacts)
--> a VelocityEstimator update -> nav_msgs/Odometry. No rclpy: shared by the state_estimator node and
-the convex_mpc node's embedded estimator (one process, no /odom hop), and tested without ROS.
+-> a VelocityEstimator update -> nav_msgs/Odometry (as a1_interface.wire's light view). No rclpy:
+shared by the state_estimator node and the convex_mpc node's embedded estimator (one process, no
+/odom hop), and tested without ROS.
 """
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ import numpy as np
 from a1_interface.contract import BASE_FRAME, ODOM_FRAME
 from a1_interface.conversions import ns_from_stamp
 from a1_interface.sensors import SensorReadings
-from nav_msgs.msg import Odometry
+from a1_interface.wire import OdometryView, odometry_view
 from sensor_msgs.msg import Imu, JointState
 
 from gait_msgs.msg import FootContacts
@@ -18,10 +19,13 @@ from state_estimator_node.estimator import Estimate, EstimatorConfig, VelocityEs
 # IMU / contact readings older than this relative to the joint state are not used [s].
 MAX_SENSOR_SKEW = 0.01
 GYRO_VARIANCE = 1e-4  # [(rad/s)^2] reported for the angular part of the twist
+# Dead reckoning has no pose covariance to give: -1 on the diagonal says "unknown" (REP-145 style).
+POSE_COVARIANCE = np.diag(np.full(6, -1.0)).ravel()
+POSE_COVARIANCE.flags.writeable = False
 
 
 class OdometryFrontend:
-    """One sensor step's messages -> a filter update -> nav_msgs/Odometry. No rclpy Node: shared by
+    """One sensor step's messages -> a filter update -> /odom's content. No rclpy Node: shared by
     the state_estimator node and the convex_mpc node's embedded estimator (one process, no /odom hop)."""
 
     def __init__(self, config: EstimatorConfig) -> None:
@@ -64,25 +68,13 @@ class OdometryFrontend:
         self.last_ns = now_ns
         return est
 
-    def odometry(self, joints: JointState, imu: Imu, est: Estimate) -> Odometry:
-        """/odom for the step of ``joints`` and ``imu`` with its estimate ``est``."""
-        gyro = imu.angular_velocity
-        odom = Odometry()
-        odom.header.stamp = joints.header.stamp
-        odom.header.frame_id = ODOM_FRAME
-        odom.child_frame_id = BASE_FRAME
-        pose = odom.pose.pose
-        pose.position.x, pose.position.y = float(self.position[0]), float(self.position[1])
-        pose.position.z = float(est.height) if est.height is not None else 0.0
-        pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (
-            float(v) for v in est.orientation)
-        twist = odom.twist.twist
-        twist.linear.x, twist.linear.y, twist.linear.z = (float(v) for v in est.velocity_body)
-        twist.angular.x, twist.angular.y, twist.angular.z = gyro.x, gyro.y, gyro.z
+    def odometry(self, joints: JointState, imu: Imu, est: Estimate) -> OdometryView:
+        """/odom for the step of ``joints`` and ``imu`` with its estimate ``est``: dead-reckoned
+        position and the filter's orientation in odom, velocity and gyro in base_link."""
         cov = np.zeros((6, 6))
         cov[:3, :3] = est.covariance_body
         cov[3:, 3:] = np.eye(3) * GYRO_VARIANCE
-        odom.twist.covariance = cov.ravel().tolist()
-        pose_cov = np.full(6, -1.0)  # unknown pose covariance (dead reckoning), per REP-145 style
-        odom.pose.covariance = np.diag(pose_cov).ravel().tolist()
-        return odom
+        position = (self.position[0], self.position[1], est.height if est.height is not None else 0.0)
+        gyro = imu.angular_velocity
+        return odometry_view(ns_from_stamp(joints.header.stamp), ODOM_FRAME, BASE_FRAME, position, est.orientation,
+                             est.velocity_body, (gyro.x, gyro.y, gyro.z), POSE_COVARIANCE, cov.ravel())

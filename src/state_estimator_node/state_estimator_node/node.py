@@ -31,26 +31,30 @@ from tf2_msgs.msg import TFMessage
 TF_PERIOD_NS = 20_000_000  # /tf at 50 Hz of stamp time: plenty for RViz, and light beside the 500 Hz /odom
 
 
-class OdomTransformPublisher:
-    """/tf ``odom -> base_link`` from the /odom being published (REP-105), at most every TF_PERIOD_NS
-    of stamp time (and at once after time went back: a sim reset)."""
+class OdometryPublisher:
+    """/odom (as bytes, a1_interface.wire) and /tf ``odom -> base_link`` from it (REP-105), the
+    transform at most every TF_PERIOD_NS of stamp time (and at once after time went back: a sim
+    reset). Shared by the state_estimator node and the controller's embedded estimator."""
 
     def __init__(self, node: Node) -> None:
-        self.pub = node.create_publisher(TFMessage, contract.TF, TF_QOS)
-        self._last_ns: int | None = None
+        self.pub_odom = node.create_publisher(Odometry, contract.ODOM, CONTROL_QOS)
+        self.pub_tf = node.create_publisher(TFMessage, contract.TF, TF_QOS)
+        self._encoder = wire.OdometryEncoder()
+        self._last_tf_ns: int | None = None
 
-    def publish(self, odom: Odometry) -> None:
+    def publish(self, odom: wire.OdometryView) -> None:
+        self.pub_odom.publish(self._encoder.encode(odom))
         stamp_ns = ns_from_stamp(odom.header.stamp)
-        if self._last_ns is not None and 0 <= stamp_ns - self._last_ns < TF_PERIOD_NS:
+        if self._last_tf_ns is not None and 0 <= stamp_ns - self._last_tf_ns < TF_PERIOD_NS:
             return
-        self._last_ns = stamp_ns
+        self._last_tf_ns = stamp_ns
         t = TransformStamped()
-        t.header = odom.header
+        t.header.stamp, t.header.frame_id = odom.header.stamp, odom.header.frame_id
         t.child_frame_id = odom.child_frame_id
         p, q = odom.pose.pose.position, odom.pose.pose.orientation
         t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = p.x, p.y, p.z
-        t.transform.rotation = q
-        self.pub.publish(TFMessage(transforms=[t]))
+        t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z, t.transform.rotation.w = q
+        self.pub_tf.publish(TFMessage(transforms=[t]))
 
 
 def estimator_config_from_parameters(params: dict) -> EstimatorConfig:
@@ -72,8 +76,7 @@ class StateEstimatorNode(Node):
         self._contacts: FootContacts | None = None
         self._last_wall = float("-inf")
         self._published = 0
-        self.pub_odom = self.create_publisher(Odometry, contract.ODOM, CONTROL_QOS)
-        self.tf = OdomTransformPublisher(self)
+        self.odom = OdometryPublisher(self)
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
         # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_interface.wire).
         wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints,
@@ -96,9 +99,7 @@ class StateEstimatorNode(Node):
                                           throttle_duration_sec=1.0)
             return
         self._last_wall = time.monotonic()
-        odom = front.odometry(msg, self._imu, est)
-        self.pub_odom.publish(odom)
-        self.tf.publish(odom)
+        self.odom.publish(front.odometry(msg, self._imu, est))
         self._published += 1
 
     def _publish_diagnostics(self) -> None:
