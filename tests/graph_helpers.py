@@ -168,10 +168,10 @@ class Graph:
 
     def start_velocity_ramp(self, speed: float = 2.5, acceleration: float = 1.0, start_delay: float = 1.5) -> None:
         """The demo's command (scripts/demo.sh): velocity_command on sim time, 0 -> ``speed`` [m/s] at
-        ``acceleration`` [m/s^2] from ``start_delay`` [s] (after the stand-up), then held."""
+        ``acceleration`` [m/s^2] from ``start_delay`` [s] of sim time (after the stand-up), then held."""
         self.start("velocity_command", "gait_policy_node", "velocity_command", "--ros-args",
                    "-p", "use_sim_time:=true", "-p", "profile:=ramp", "-p", f"speed:={speed}",
-                   "-p", f"acceleration:={acceleration}", "-p", f"start_delay:={start_delay}")
+                   "-p", f"acceleration:={acceleration}", "-p", f"start_delay:={start_delay}", "-p", "start_time:=0.0")
 
     def kill(self, name: str) -> None:
         proc = self.procs.pop(name)

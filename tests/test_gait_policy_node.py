@@ -4,6 +4,7 @@ network's gait on /gait/params out; a bad file stops the node with the reason.""
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -177,3 +178,26 @@ def test_demo_report_starts_a_paused_sim_once_every_topic_has_a_publisher(rclpy_
         executor.shutdown()
         report.destroy_node()
         graph.destroy_node()
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize(("start_time", "expected"), [
+    (-1.0, [0.0, 0.3, 0.5]),  # from the first tick (3.3 s): zero until 4.8 s, then the ramp
+    (0.0, [1.8, 2.5, 2.5]),   # from t = 0: the ramp began at 1.5 s, whenever the first tick came
+])
+def test_velocity_command_counts_profile_time_from_its_first_tick_or_start_time(rclpy_context, start_time, expected):
+    """The demo's ramp (start_delay 1.5 s, 1 m/s^2 to 2.5 m/s) ticked first at 3.3 s of its clock, as
+    when the process hears its first /clock late: with start_time 0 it still follows the sim's t."""
+    from gait_policy_node.velocity_command import VelocityCommandNode
+
+    node = VelocityCommandNode(context=rclpy_context, parameter_overrides=[
+        Parameter("start_delay", value=1.5), Parameter("start_time", value=start_time)])
+    sent = []
+    try:
+        node.pub.publish = lambda msg: sent.append(msg.linear.x)
+        for now in (3.3, 5.1, 5.3):
+            node.get_clock = lambda now=now: SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=round(now * 1e9)))
+            node._tick()
+        assert sent == pytest.approx(expected)
+    finally:
+        node.destroy_node()

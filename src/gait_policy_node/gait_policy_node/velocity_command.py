@@ -5,9 +5,11 @@ Interchangeable with ``ros2 topic pub /cmd_vel geometry_msgs/msg/Twist ...``. Pr
 - ramp: forward speed 0 -> ``speed`` at ``acceleration`` (the paper's 0 -> 2.5 m/s at 1 m/s^2), held;
 - steps: ``steps`` = "t0:v0,t1:v1,..." forward speed v_i from time t_i [s] (0 before t0).
 The profiles are ``speed_profiles``, the ones the training episodes and in-process tools use.
-Time is the node's clock (sim time with use_sim_time), counted from the first tick; nothing but
-zero is sent for the first ``start_delay`` seconds (the controller stands up meanwhile); with
-``duration`` > 0 it publishes zero and exits after that many seconds.
+Time is the node's clock (sim time with use_sim_time), counted from the first tick, or from
+``start_time`` of that clock when it is set (the demo: sim time 0, so that the ramp starts at the
+same sim time however late this process hears its first /clock); nothing but zero is sent for the
+first ``start_delay`` seconds (the controller stands up meanwhile); with ``duration`` > 0 it
+publishes zero and exits after that many seconds.
 Every value is range-checked at start-up (a bad one ends the node with its name and range); the
 parameters are read at start-up only, so runtime changes are refused.
 """
@@ -44,7 +46,8 @@ class NodeParameters:
     steps: str = setting("0:0.0", "steps profile: 'time:speed,...' [s:m/s], times increasing")
     rate: float = setting(20.0, "/cmd_vel publish rate [Hz]")
     duration: float = setting(0.0, "stop publishing after this long [s] (0: never)")
-    start_delay: float = setting(0.0, "profile time starts this long after the first tick [s]")
+    start_delay: float = setting(0.0, "profile time starts this long after the first tick (or start_time) [s]")
+    start_time: float = setting(-1.0, "count time from this time of the node's clock [s] (-1: from the first tick)")
 
 
 PARAMETERS = NodeParameters()
@@ -83,10 +86,11 @@ class VelocityCommandNode(Node):
             self.steps = parse_steps(p["steps"])
             self.duration = require_range("duration", p["duration"], 0.0, 1e6)
             self.start_delay = require_range("start_delay", p["start_delay"], 0.0, 3600.0)
+            start_time = require_range("start_time", p["start_time"], -1.0, 1e9)
             rate = require_range("rate", p["rate"], 1.0, 1000.0)
         constrain_parameters(self, p, constraints)  # all read-only: read at start-up
         self.pub = self.create_publisher(Twist, contract.CMD_VEL, COMMAND_QOS)
-        self._start = None
+        self._start = start_time if start_time >= 0.0 else None
         if self.profile == "constant":
             self._profile = speed_profiles.constant(self.speed, self.lateral, self.yaw_rate)
         elif self.profile == "ramp":
