@@ -100,7 +100,8 @@ class PhaseIntegrator:
     """Advances the leg phases at the control rate and turns them into a contact schedule."""
 
     def __init__(self, params: GaitParams) -> None:
-        self.params: GaitParams | None = None
+        self.params: GaitParams | None = None  # the validated copy of the last parameters set
+        self._set_from: GaitParams | None = None  # what set_params was last given
         self.phase_fr = 0.0  # phi_1 [rad], in [0, 2pi)
         self.set_params(params)
 
@@ -119,9 +120,10 @@ class PhaseIntegrator:
 
     def set_params(self, params: GaitParams) -> None:
         """New gait parameters; phi_1 continues from where it is, without a jump."""
-        if params is self.params:
-            return  # set again every 2 ms by the supervisor: validated already
+        if params is self._set_from:
+            return  # set again every 2 ms by the supervisor: validated already (GaitParams is frozen)
         self.params = params.validated()
+        self._set_from = params
         self._offsets = np.asarray(self.params.phase_offsets, dtype=float)
         self._views = None
 
