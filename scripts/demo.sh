@@ -73,7 +73,7 @@ GRAPH_SETS=(--set sim_bridge.start_paused=true)
 start_graph "$LOGDIR" "$WORLD" "$CLOCK" "$POLICY" sim "$FORM"
 # The ramp starts at 1.5 s of sim time: the controller stands up first (stand_time in
 # config/convex_mpc.yaml). start_time 0 counts from the sim's t = 0, not from this process's first
-# /clock, which on a busy machine came up to 3.3 s late and shifted the whole ramp (44.4 against 37.4 m).
+# /clock, which on a busy machine came up to 3.3 s late and shifted the whole ramp (37.4 m instead of about 45).
 start_node gait_policy_node velocity_command "$LOGDIR" --ros-args -p use_sim_time:=true -p profile:=ramp \
   -p speed:=2.5 -p acceleration:=1.0 -p start_delay:=1.5 -p start_time:=0.0
 while kill -0 "$report" 2>/dev/null; do

@@ -109,7 +109,8 @@ def test_odometry_both_ways() -> None:
         truth, cv.stamp_from_ns(STAMP_NS))
     estimate = wire.odometry_view(STAMP_NS + 2_000_000, "odom_2", "a_longer_child_frame", *(
         rng.normal(size=n) for n in (3, 4, 3, 3)), rng.normal(size=36), rng.normal(size=36))
-    for view in (estimate, truth_view, estimate):  # other frames: the template is rebuilt, nothing left over
+    child_only = estimate._replace(child_frame_id="base_link")  # a rebuild must not look at frame_id alone
+    for view in (estimate, truth_view, estimate, child_only):  # other frames: the template is rebuilt
         raw = encoder.encode(view)
         assert deserialize_message(raw, Odometry) == _odometry_msg(view)
         decoded = wire.decode_odometry(serialize_message(_odometry_msg(view)))
@@ -133,7 +134,8 @@ def test_truncated_or_foreign_bytes_are_a_clear_error(decode, msg) -> None:
 
 
 class _FakeNode:
-    """Just what subscribe_sensors uses of an rclpy Node: the subscriptions it makes, and the log."""
+    """Just what subscribe_sensors and subscribe_odometry use of an rclpy Node: the subscriptions
+    they make, and the log."""
 
     def __init__(self) -> None:
         self.callbacks: dict[str, object] = {}

@@ -20,8 +20,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 from a1_hw_bridge.virtual_a1 import VirtualA1, VirtualA1Config, VirtualA1Server
-from a1_interface import contract
-from a1_interface import conversions as cv
+from a1_interface import contract, wire
 
 
 @dataclass(frozen=True)
@@ -44,6 +43,7 @@ class VirtualA1Node(Node):
         constrain_parameters(self, params, constraints)  # all read-only: read at start-up
         self.publish_ground_truth = bool(params["publish_ground_truth"])
         self.pub_truth = self.create_publisher(Odometry, contract.GROUND_TRUTH, CONTROL_QOS)
+        self._truth_encoder = wire.OdometryEncoder()  # as bytes, like the sim bridge's
         self.pub_diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.DIAGNOSTICS_QOS)
         self._lowest_base_height = float("inf")  # [m] since the last /diagnostics (ground truth)
         self.server = VirtualA1Server(self.robot, on_tick=self._on_tick)
@@ -68,10 +68,10 @@ class VirtualA1Node(Node):
     def _on_tick(self) -> None:
         if self.publish_ground_truth:
             sim = self.robot.sim
-            stamp = cv.stamp_from_ns(sim.steps * round(sim.config.time_step * 1e9))
+            stamp_ns = sim.steps * round(sim.config.time_step * 1e9)
             truth = sim.ground_truth()
             self._lowest_base_height = min(self._lowest_base_height, float(truth.base_position[2]))
-            self.pub_truth.publish(cv.ground_truth_msg(truth, stamp))
+            self.pub_truth.publish(self._truth_encoder.encode(wire.ground_truth_odometry(truth, stamp_ns)))
 
     def _publish_diagnostics(self) -> None:
         r = self.robot

@@ -364,6 +364,7 @@ def decode_foot_contacts(buffer: bytes) -> FootContactsView:
 
 
 def decode_odometry(buffer: bytes) -> OdometryView:
+    """nav_msgs/Odometry's bytes as an OdometryView (covariances as (36,) arrays)."""
     reader = CdrReader(buffer, "nav_msgs/Odometry")
     header = reader.header()
     child_frame_id = reader.string_bytes().decode()

@@ -9,7 +9,7 @@ Time is the node's clock (sim time with use_sim_time), counted from the first ti
 ``start_time`` of that clock when it is set (the demo: sim time 0, so that the ramp starts at the
 same sim time however late this process hears its first /clock); nothing but zero is sent for the
 first ``start_delay`` seconds (the controller stands up meanwhile); with ``duration`` > 0 it
-publishes zero and exits after that many seconds.
+publishes zero and exits that many seconds after the same start.
 Every value is range-checked at start-up (a bad one ends the node with its name and range); the
 parameters are read at start-up only, so runtime changes are refused.
 """
@@ -87,6 +87,8 @@ class VelocityCommandNode(Node):
             self.duration = require_range("duration", p["duration"], 0.0, 1e6)
             self.start_delay = require_range("start_delay", p["start_delay"], 0.0, 3600.0)
             start_time = require_range("start_time", p["start_time"], -1.0, 1e9)
+            if -1.0 < start_time < 0.0:
+                raise ConfigError(f"start_time must be -1 (from the first tick) or in [0, 1e9] s, got {start_time}")
             rate = require_range("rate", p["rate"], 1.0, 1000.0)
         constrain_parameters(self, p, constraints)  # all read-only: read at start-up
         self.pub = self.create_publisher(Twist, contract.CMD_VEL, COMMAND_QOS)
