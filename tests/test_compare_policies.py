@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from convex_mpc_node.gait import GaitParams
-from gait_policy_node.compare_policies import load_timing, main, with_low_speed_lag
+from gait_policy_node.compare_policies import load_timing, main, with_lag
 from gait_policy_node.env import GaitEnv
 from gait_policy_node.learned_policy import NetworkPolicy, load_policy, save_policy
 from gait_policy_node.rollout_workers import run_episode
@@ -66,7 +66,7 @@ def test_by_speed_splits_each_return_into_its_bands_against_the_first_policy(two
 
 def test_a_blend_moves_the_low_speed_gait_toward_the_other_policys_along_the_shorter_arc(two_policies, capsys,
                                                                                           tmp_path):
-    from gait_policy_node.compare_policies import blend, with_low_speed_blend
+    from gait_policy_node.compare_policies import blend, with_blend
 
     _, (a, b) = two_policies
     a_gait, b_gait = GaitParams(1.0, 0.2, (0.0, 0.1, 3.0, 6.2)), GaitParams(3.0, 0.6, (0.0, 6.1, 3.2, 0.2))
@@ -77,7 +77,7 @@ def test_a_blend_moves_the_low_speed_gait_toward_the_other_policys_along_the_sho
     assert blend(a_gait, b_gait, 0.0) == GaitParams(1.0, 0.2, pytest.approx(a_gait.phase_offsets))
     pa, pb = load_policy(a)[0], load_policy(b)[0]
     slow, fast = np.array([0.5, 0.4, 0.0, 0.0]), np.array([1.5, 1.4, 0.0, 0.0])
-    whole_way = with_low_speed_blend(pa, pb, 1.0, below=1.0)
+    whole_way = with_blend(pa, pb, 1.0, below=1.0)
     assert whole_way(slow).stepping_frequency == pytest.approx(pb(slow).stepping_frequency)
     assert whole_way(fast) == pa(fast)
     plot = tmp_path / "by_speed.png"
@@ -122,7 +122,7 @@ def test_bad_arguments_name_what_is_wrong(two_policies, capsys, tmp_path):
 def test_a_low_speed_lag_replaces_only_the_offsets_and_only_below_the_speed(two_policies, capsys):
     _, (a, _) = two_policies
     policy = load_policy(a)[0]
-    walking = with_low_speed_lag(policy, -45.0, below=1.0)
+    walking = with_lag(policy, -45.0, below=1.0)
     slow, fast = np.array([0.5, 0.4, 0.0, 0.0]), np.array([1.5, 1.4, 0.0, 0.0])
     own = policy(slow)
     assert walking(slow) == GaitParams(own.stepping_frequency, own.swing_ratio, lag_family_offsets(-45.0))
@@ -136,6 +136,35 @@ def test_a_low_speed_lag_replaces_only_the_offsets_and_only_below_the_speed(two_
     assert "--below must be in (0, 5] m/s, got 0.0" in capsys.readouterr().err
 
 
+def test_above_moves_the_change_to_the_top_speeds(two_policies, capsys, tmp_path):
+    """--above: the lag (or blend) applies from that commanded speed up, and nowhere below it."""
+    from gait_policy_node.compare_policies import with_blend
+
+    _, (a, b) = two_policies
+    pa, pb = load_policy(a)[0], load_policy(b)[0]
+    slow, fast = np.array([0.5, 0.4, 0.0, 0.0]), np.array([1.5, 1.4, 0.0, 0.0])
+    trotting_top = with_lag(pa, 0.0, below=1.25, above=1.0)
+    assert trotting_top(slow) == pa(slow)
+    assert trotting_top(fast) == GaitParams(pa(fast).stepping_frequency, pa(fast).swing_ratio, lag_family_offsets(0.0))
+    toward_top = with_blend(pa, pb, 1.0, below=1.25, above=1.0)
+    assert toward_top(slow) == pa(slow)
+    assert toward_top(fast).stepping_frequency == pytest.approx(pb(fast).stepping_frequency)
+    plot = tmp_path / "top.png"
+    assert main([str(a), "--seeds", "1", "--workers", "1", "--lags", "0", "--toward", str(b), "--fractions", "1",
+                 "--above", "0", "--by-speed", "--plot", str(plot)]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert set(out["policies"]) == {str(a), f"{a} @ lag +0 from 0 m/s", f"{a} -> {b} x1 from 0 m/s"}
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # From 0 m/s the whole way is the other policy's gait: the same return as the other policy's.
+    assert main([str(b), "--seeds", "1", "--workers", "1"]) == 0
+    other = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["policies"][str(b)]
+    assert out["policies"][f"{a} -> {b} x1 from 0 m/s"]["return_mean"] == pytest.approx(other["return_mean"], rel=1e-9)
+    assert main([str(a), "--above", "1.0"]) == 2
+    assert "--above applies to --lags and --toward" in capsys.readouterr().err
+    assert main([str(a), "--lags", "0", "--above", "-1"]) == 2
+    assert "--above must be in [0, 5] m/s, got -1.0" in capsys.readouterr().err
+
+
 def test_swept_timing_sets_f_and_p_swing_from_the_sweeps_best_rows(two_policies, capsys, tmp_path):
     _, (a, _) = two_policies
     header = "name,target_speed,frequency,swing_ratio,speed,speed_error,power,cost_of_transport,reward,fell\n"
@@ -145,7 +174,7 @@ def test_swept_timing_sets_f_and_p_swing_from_the_sweeps_best_rows(two_policies,
     timing = load_timing([str(slow), str(fast)], -30.0)
     assert timing == ((0.5, 1.0), (1.5, 2.5), (0.3, 0.4))
     policy = load_policy(a)[0]
-    walking = with_low_speed_lag(policy, -30.0, below=1.25, timing=timing)
+    walking = with_lag(policy, -30.0, below=1.25, timing=timing)
     assert walking(np.array([0.75, 0.7, 0.0, 0.0])) == GaitParams(2.0, pytest.approx(0.35), lag_family_offsets(-30.0))
     assert walking(np.array([0.2, 0.2, 0.0, 0.0])).stepping_frequency == 1.5  # held below the swept speeds
     assert walking(np.array([1.5, 1.4, 0.0, 0.0])) == policy(np.array([1.5, 1.4, 0.0, 0.0]))
@@ -168,7 +197,7 @@ def test_fit_policy_acts_as_the_lag_variant_away_from_the_switch_and_loads_as_a_
     out = tmp_path / "walking.npz"
     assert fit_main([str(a), "--lag", "-30", "--below", "1.0", "--out", str(out), "--samples", "4000"]) == 0
     report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    fitted, target = load_policy(out)[0], with_low_speed_lag(load_policy(a)[0], -30.0, below=1.0)
+    fitted, target = load_policy(out)[0], with_lag(load_policy(a)[0], -30.0, below=1.0)
     slow = np.array([0.4, 0.45, 0.0, 0.0])
     got, want = fitted(slow), target(slow)
     assert np.allclose(np.cos(np.subtract(got.phase_offsets, want.phase_offsets)), 1.0, atol=1 - np.cos(np.radians(10)))

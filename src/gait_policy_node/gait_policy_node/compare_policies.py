@@ -2,7 +2,7 @@
 
     compare_policies POLICY [POLICY ...] [--config RUN/config.yaml] [--seeds N] [--first-seed S]
                      [--workers N] [--lags DEG ... --below V [--timing BEST.csv ...]]
-                     [--toward POLICY --fractions X ... --below V] [--by-speed [--plot PNG]]
+                     [--toward POLICY --fractions X ... --below V] [--above V] [--by-speed [--plot PNG]]
 
 train_es keeps as "best" the mean whose one evaluation episode (seed 0) scored highest, so two
 candidates an evaluation apart may differ by no more than one episode's luck. This runs every
@@ -19,7 +19,9 @@ the commanded speed and held beyond the swept speeds): the four-beat gait with t
 it cheapest at steady speed. ``--toward B --fractions ...`` adds, for each policy and fraction x, the
 policy whose gait below ``--below`` is x of the way to policy B's gait at the same observation
 (f and p_swing linear, each phase offset along the shorter arc): the return along a straight path in
-gait space from one optimum to another, i.e. whether a valley lies between them. ``--by-speed``
+gait space from one optimum to another, i.e. whether a valley lies between them. ``--above V``
+applies the ``--lags`` and ``--toward`` changes at commanded speeds from V up instead of below
+``--below`` (e.g. a trot's offsets at the top: ``--lags 0 --above 1.75``). ``--by-speed``
 also splits each policy's return by commanded-speed band (gait_analysis.SPEED_BANDS): per band the
 policy steps, the return earned there and its speed and energy penalties (means over the seeds),
 and how far each policy's band return is from the first's, beside the seed-to-seed spread: where
@@ -59,9 +61,9 @@ Timing = tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
 
 @dataclass(frozen=True)
 class Variant:
-    """A policy as it is, or changed below the commanded speed ``below`` [m/s]: its offsets the lag
-    family's (``lag`` [deg], with ``timing`` or its own f and p_swing), or its gait ``fraction`` of
-    the way to policy ``toward``'s."""
+    """A policy as it is, or changed below the commanded speed ``below`` [m/s] (from ``above`` up
+    when that is given): its offsets the lag family's (``lag`` [deg], with ``timing`` or its own f
+    and p_swing), or its gait ``fraction`` of the way to policy ``toward``'s."""
 
     spec: str
     below: float = 1.25
@@ -69,6 +71,16 @@ class Variant:
     timing: Timing | None = None
     toward: str | None = None
     fraction: float = 0.0
+    above: float | None = None
+
+    def where(self) -> str:
+        return f"from {self.above:g} m/s" if self.above is not None else f"below {self.below:g} m/s"
+
+
+def changed_at(speed: float, below: float, above: float | None = None) -> bool:
+    """Whether a variant's change applies at commanded speed ``speed`` [m/s]: from ``above`` up when
+    that is given, else under ``below``."""
+    return speed >= above if above is not None else speed < below
 
 
 def load_timing(paths: list[str], lag_deg: float) -> Timing:
@@ -92,17 +104,17 @@ def load_timing(paths: list[str], lag_deg: float) -> Timing:
     return tuple(speeds), tuple(by_speed[v][0] for v in speeds), tuple(by_speed[v][1] for v in speeds)
 
 
-def with_low_speed_lag(policy: ObservationPolicy, lag_deg: float, below: float,
-                       timing: Timing | None = None) -> ObservationPolicy:
+def with_lag(policy: ObservationPolicy, lag_deg: float, below: float, timing: Timing | None = None,
+             above: float | None = None) -> ObservationPolicy:
     """``policy`` whose phase offsets, while the commanded speed (observation 0) [m/s] is under
-    ``below``, are the lag family's for ``lag_deg``; its stepping frequency and swing ratio kept,
-    or taken from ``timing`` at the commanded speed."""
+    ``below`` (or from ``above`` up), are the lag family's for ``lag_deg``; its stepping frequency
+    and swing ratio kept, or taken from ``timing`` at the commanded speed."""
     offsets = lag_family_offsets(lag_deg)
 
     def wrapped(obs: np.ndarray) -> GaitParams:
         gait = policy(obs)
         speed = abs(float(obs[0]))
-        if speed >= below:
+        if not changed_at(speed, below, above):
             return gait
         if timing is None:
             return GaitParams(gait.stepping_frequency, gait.swing_ratio, offsets)
@@ -121,24 +133,24 @@ def blend(a: GaitParams, b: GaitParams, fraction: float) -> GaitParams:
                       tuple(float(o) for o in np.mod(np.asarray(a.phase_offsets) + fraction * arcs, 2 * np.pi)))
 
 
-def with_low_speed_blend(policy: ObservationPolicy, other: ObservationPolicy, fraction: float,
-                         below: float) -> ObservationPolicy:
-    """``policy`` whose gait, while the commanded speed (observation 0) [m/s] is under ``below``, is
-    ``fraction`` of the way to ``other``'s gait for the same observation."""
+def with_blend(policy: ObservationPolicy, other: ObservationPolicy, fraction: float, below: float,
+               above: float | None = None) -> ObservationPolicy:
+    """``policy`` whose gait, while the commanded speed (observation 0) [m/s] is under ``below`` (or
+    from ``above`` up), is ``fraction`` of the way to ``other``'s gait for the same observation."""
 
     def wrapped(obs: np.ndarray) -> GaitParams:
         gait = policy(obs)
-        return gait if abs(float(obs[0])) >= below else blend(gait, other(obs), fraction)
+        return blend(gait, other(obs), fraction) if changed_at(abs(float(obs[0])), below, above) else gait
     return wrapped
 
 
 def label(variant: Variant) -> str:
     v = variant
     if v.toward is not None:
-        return f"{v.spec} -> {v.toward} x{v.fraction:g} below {v.below:g} m/s"
+        return f"{v.spec} -> {v.toward} x{v.fraction:g} {v.where()}"
     if v.lag is None:
         return v.spec
-    return f"{v.spec} @ lag {v.lag:+g}{' swept timing' if v.timing else ''} below {v.below:g} m/s"
+    return f"{v.spec} @ lag {v.lag:+g}{' swept timing' if v.timing else ''} {v.where()}"
 
 
 # Columns of a band-terms array (one row per SPEED_BANDS band): sums over the band's policy steps.
@@ -158,9 +170,9 @@ def _episode(variant: Variant, config_dict: dict, seed: int) -> tuple[EpisodeSta
     process); its stats and its band terms (BAND_COLUMNS per SPEED_BANDS band)."""
     policy, _ = resolve_policy(variant.spec)
     if variant.lag is not None:
-        policy = with_low_speed_lag(policy, variant.lag, variant.below, variant.timing)
+        policy = with_lag(policy, variant.lag, variant.below, variant.timing, variant.above)
     if variant.toward is not None:
-        policy = with_low_speed_blend(policy, resolve_policy(variant.toward)[0], variant.fraction, variant.below)
+        policy = with_blend(policy, resolve_policy(variant.toward)[0], variant.fraction, variant.below, variant.above)
     config = train_config_from_mapping(config_dict)
     env = GaitEnv(config.env, config.reward)
     bands = np.zeros((len(SPEED_BANDS), len(BAND_COLUMNS)))
@@ -223,11 +235,11 @@ def short_label(label: str) -> str:
     return re.sub(r"(?:\S*/)?([^/\s]+)/(?:best_)?policy\.npz", r"\1", label)
 
 
-def plot_by_speed(rows: dict[str, list[dict]], variants: list[Variant], path: Path, below: float = 1.25) -> None:
+def plot_by_speed(rows: dict[str, list[dict]], variants: list[Variant], path: Path) -> None:
     """Each policy's band return minus the first policy's, as bars per commanded-speed band; with
     ``--toward`` variants a second panel: the return change along the way against the fraction, in
-    the bands wholly under ``below`` [m/s] (where the gait changed), in the others, and in all.
-    PNG ``path``, replaced atomically."""
+    the bands where the gait changed (wholly under the variants' ``below``, or from their
+    ``above``), in the others, and in all. PNG ``path``, replaced atomically."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -251,23 +263,29 @@ def plot_by_speed(rows: dict[str, list[dict]], variants: list[Variant], path: Pa
         axes[0, 0].legend(fontsize=8)
     if paths:
         ax = axes[0, 1]
-        split = max((hi for _, hi in SPEED_BANDS if hi <= below + 1e-9), default=0.0)
+        first = paths[0]  # all paths change the gait over the same speeds (one --below / --above)
+        if first.above is not None:
+            split = min((lo for lo, _ in SPEED_BANDS if lo >= first.above - 1e-9), default=SPEED_BANDS[-1][1])
+            changed, where = (lambda lo: lo >= split), f"from {split:g} m/s"
+        else:
+            split = max((hi for _, hi in SPEED_BANDS if hi <= first.below + 1e-9), default=0.0)
+            changed, where = (lambda lo: lo < split), f"below {split:g} m/s"
         for spec in dict.fromkeys(v.spec for v in paths):
             own = {tuple(r["band"]): r["return"] for r in rows[spec]}
             ways = sorted((v for v in paths if v.spec == spec), key=lambda v: v.fraction)
-            parts = {"below": [], "above": [], "all": []}
+            parts = {"changed": [], "unchanged": [], "all": []}
             for v in ways:
                 diff = [(r["band"][0], r["return"] - own.get(tuple(r["band"]), 0.0)) for r in rows[label(v)]]
-                parts["below"].append(sum(d for lo, d in diff if lo < split))
-                parts["above"].append(sum(d for lo, d in diff if lo >= split))  # gait as its own above `below`
+                parts["changed"].append(sum(d for lo, d in diff if changed(lo)))
+                parts["unchanged"].append(sum(d for lo, d in diff if not changed(lo)))  # the gait as its own
                 parts["all"].append(sum(d for _, d in diff))
             fractions = [0.0] + [v.fraction for v in ways]
             name = short_label(spec)
-            line = ax.plot(fractions, [0.0] + parts["below"], "o-", label=f"{name}: bands below {split:g} m/s")[0]
-            ax.plot(fractions, [0.0] + parts["above"], "s:", color=line.get_color(), label=f"{name}: bands above")
+            line = ax.plot(fractions, [0.0] + parts["changed"], "o-", label=f"{name}: bands {where}")[0]
+            ax.plot(fractions, [0.0] + parts["unchanged"], "s:", color=line.get_color(), label=f"{name}: other bands")
             ax.plot(fractions, [0.0] + parts["all"], "^--", color=line.get_color(), alpha=0.6, label=f"{name}: episode")
         ax.axhline(0.0, color="k", lw=0.8)
-        ax.set_xlabel(f"fraction of the way to {short_label(paths[0].toward)}'s gait (below {paths[0].below:g} m/s)")
+        ax.set_xlabel(f"fraction of the way to {short_label(first.toward)}'s gait ({first.where()})")
         ax.set_ylabel("return minus the policy's own")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
@@ -314,6 +332,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--lags", type=float, nargs="+", default=[], metavar="DEG",
                         help="also run each policy with these diagonal lags [deg] below --below")
     parser.add_argument("--below", type=float, default=1.25, help="commanded speed [m/s] under which --lags apply")
+    parser.add_argument("--above", type=float, metavar="V",
+                        help="apply --lags and --toward from this commanded speed [m/s] up instead of below --below")
     parser.add_argument("--timing", nargs="+", default=[], metavar="BEST_CSV",
                         help="sweep_gaits best.csv files: --lags variants take f and p_swing from them")
     parser.add_argument("--toward", metavar="POLICY", help="also run each policy's gait below --below moved "
@@ -337,6 +357,10 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f"--first-seed must be >= 0, got {args.first_seed}")
         if not 0.0 < args.below <= 5.0:
             raise ConfigError(f"--below must be in (0, 5] m/s, got {args.below}")
+        if args.above is not None and not 0.0 <= args.above <= 5.0:
+            raise ConfigError(f"--above must be in [0, 5] m/s, got {args.above}")
+        if args.above is not None and not (args.lags or args.toward):
+            raise ConfigError("--above applies to --lags and --toward variants: give one of them")
         for lag in args.lags:
             lag_family_offsets(lag)  # ConfigError naming the range
         if args.timing and not args.lags:
@@ -362,9 +386,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"compare_policies: {exc}", file=sys.stderr)
         return 2
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    variants = [Variant(spec, args.below, lag, timings.get(lag)) for spec in args.policies
-                for lag in (None, *args.lags)]
-    variants += [Variant(spec, args.below, toward=args.toward, fraction=x) for spec in args.policies
+    variants = [Variant(spec, args.below, lag, timings.get(lag), above=args.above if lag is not None else None)
+                for spec in args.policies for lag in (None, *args.lags)]
+    variants += [Variant(spec, args.below, toward=args.toward, fraction=x, above=args.above) for spec in args.policies
                  for x in args.fractions]
     results = compare(variants, config, seeds, min(args.workers, len(seeds) * len(variants)))
     rows = {spec: summary([stats for stats, _ in runs]) for spec, runs in results.items()}
@@ -380,7 +404,7 @@ def main(argv: list[str] | None = None) -> int:
         figures["by_speed"] = by_speed(results)
         print(format_by_speed(figures["by_speed"]))
         if args.plot is not None:
-            plot_by_speed(figures["by_speed"], variants, args.plot, below=args.below)
+            plot_by_speed(figures["by_speed"], variants, args.plot)
             print(f"wrote {args.plot}")
     print(json.dumps(figures))
     return 0

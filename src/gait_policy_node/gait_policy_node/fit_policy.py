@@ -23,7 +23,7 @@ import numpy as np
 from a1_common.config import ConfigError
 from convex_mpc_node.gait import GaitParams
 
-from gait_policy_node.compare_policies import load_timing, with_low_speed_lag
+from gait_policy_node.compare_policies import load_timing, with_lag
 from gait_policy_node.gait_analysis import shortest_arc
 from gait_policy_node.learned_policy import ACTION_SIZE, NetworkPolicy, encode_action, load_policy, save_policy
 from gait_policy_node.train_config import ProfileConfig
@@ -70,7 +70,7 @@ def fit_output_layer(policy: NetworkPolicy, observations: np.ndarray, targets: n
 def lag_targets(policy: NetworkPolicy, observations: np.ndarray, lag_deg: float, below: float,
                 timing=None) -> np.ndarray:
     """Network outputs that decode to the lag variant's gait for each observation (its own above ``below``)."""
-    variant = with_low_speed_lag(policy, lag_deg, below, timing)
+    variant = with_lag(policy, lag_deg, below, timing)
     rows = []
     for obs in observations:
         own = policy.raw_action(obs)
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         observations = sample_observations(args.samples, top, args.seed)
         fitted = fit_output_layer(policy, observations, lag_targets(policy, observations, args.lag, args.below, timing))
         check = sample_observations(2000, top, args.seed + 1)
-        report = fit_report(fitted, with_low_speed_lag(policy, args.lag, args.below, timing), check, args.below)
+        report = fit_report(fitted, with_lag(policy, args.lag, args.below, timing), check, args.below)
         save_policy(args.out, fitted, config)
     except (ConfigError, OSError) as exc:
         print(f"fit_policy: {exc}", file=sys.stderr)
