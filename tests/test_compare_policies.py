@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from a1_common.config import ConfigError
 from convex_mpc_node.gait import GaitParams
 from gait_policy_node.compare_policies import load_timing, main, with_lag
 from gait_policy_node.env import GaitEnv
@@ -225,3 +226,18 @@ def test_encode_action_is_decode_actions_inverse_within_its_limit(saturated, tim
         assert back.stepping_frequency == pytest.approx(gait.stepping_frequency)
         assert back.swing_ratio == pytest.approx(gait.swing_ratio)
         assert np.allclose(np.cos(np.subtract(back.phase_offsets, gait.phase_offsets)), 1.0)
+
+
+def test_a_policy_file_replaced_during_a_comparison_is_an_error_not_a_silent_mix(two_policies, tmp_path):
+    """A training run replaces best_policy.npz between iterations: the variants of one comparison
+    must not run different policies without saying so."""
+    from gait_policy_node.compare_policies import Variant, _episode, policy_files
+
+    _, (a, b) = two_policies
+    path = tmp_path / "best_policy.npz"
+    path.write_bytes(a.read_bytes())
+    files = policy_files([Variant(str(path)), Variant(str(path), lag=0.0)])
+    assert list(files) == [str(path)]
+    path.write_bytes(b.read_bytes())
+    with pytest.raises(ConfigError, match="changed while compare_policies ran"):
+        _episode(Variant(str(path), lag=0.0), {}, 0, files)

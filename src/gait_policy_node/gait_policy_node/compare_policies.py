@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import hashlib
 import json
 import os
 import re
@@ -165,9 +166,22 @@ def band_of(speed: float) -> int | None:
                 None)
 
 
-def _episode(variant: Variant, config_dict: dict, seed: int) -> tuple[EpisodeStats, np.ndarray]:
+def policy_files(variants: list[Variant]) -> dict[str, str]:
+    """The sha256 of every policy file the variants name: each episode loads its files anew, and a
+    training run may replace a best_policy.npz between two episodes of one comparison."""
+    files = {s for v in variants for s in (v.spec, v.toward) if s is not None and s.endswith(".npz")}
+    return {path: hashlib.sha256(Path(path).read_bytes()).hexdigest() for path in sorted(files)}
+
+
+def _episode(variant: Variant, config_dict: dict, seed: int,
+             files: dict[str, str]) -> tuple[EpisodeStats, np.ndarray]:
     """One episode of a policy variant on ``config_dict``'s env and reward (runs in a worker
-    process); its stats and its band terms (BAND_COLUMNS per SPEED_BANDS band)."""
+    process); its stats and its band terms (BAND_COLUMNS per SPEED_BANDS band). ConfigError if a
+    policy file is no longer the one ``files`` fingerprinted."""
+    for path, digest in files.items():
+        if path in (variant.spec, variant.toward) and hashlib.sha256(Path(path).read_bytes()).hexdigest() != digest:
+            raise ConfigError(f"{path} changed while compare_policies ran (a training run writing it?): "
+                              "compare a copy of it")
     policy, _ = resolve_policy(variant.spec)
     if variant.lag is not None:
         policy = with_lag(policy, variant.lag, variant.below, variant.timing, variant.above)
@@ -191,10 +205,10 @@ def _episode(variant: Variant, config_dict: dict, seed: int) -> tuple[EpisodeSta
 def compare(variants: list[Variant], config: TrainConfig, seeds: list[int],
             workers: int) -> dict[str, list[tuple[EpisodeStats, np.ndarray]]]:
     """Every policy variant on every seed; (stats, band terms) in seed order, per variant's label."""
-    config_dict = config.to_dict()
+    config_dict, files = config.to_dict(), policy_files(variants)
     jobs = [(variant, seed) for variant in variants for seed in seeds]
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(_episode, variant, config_dict, seed) for variant, seed in jobs]
+        futures = [pool.submit(_episode, variant, config_dict, seed, files) for variant, seed in jobs]
         results: dict[str, list[tuple[EpisodeStats, np.ndarray]]] = {label(v): [] for v in variants}
         for (variant, seed), future in zip(jobs, futures, strict=True):
             stats, bands = future.result()
@@ -390,7 +404,11 @@ def main(argv: list[str] | None = None) -> int:
                 for spec in args.policies for lag in (None, *args.lags)]
     variants += [Variant(spec, args.below, toward=args.toward, fraction=x, above=args.above) for spec in args.policies
                  for x in args.fractions]
-    results = compare(variants, config, seeds, min(args.workers, len(seeds) * len(variants)))
+    try:
+        results = compare(variants, config, seeds, min(args.workers, len(seeds) * len(variants)))
+    except ConfigError as exc:
+        print(f"compare_policies: {exc}", file=sys.stderr)
+        return 2
     rows = {spec: summary([stats for stats, _ in runs]) for spec, runs in results.items()}
     width = max(len(s) for s in rows)
     print(f"\n{'policy':<{width}}  return mean  std    min      max      falls  CoT    speed error^2")
