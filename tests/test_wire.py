@@ -107,7 +107,7 @@ def test_odometry_both_ways() -> None:
     truth_view = wire.ground_truth_odometry(truth, STAMP_NS)
     assert deserialize_message(encoder.encode(truth_view), Odometry) == cv.ground_truth_msg(
         truth, cv.stamp_from_ns(STAMP_NS))
-    estimate = wire.odometry_view(STAMP_NS + 2_000_000, "odom_2", "a_longer_child_frame", *(
+    estimate = wire.odometry_view(cv.stamp_from_ns(STAMP_NS + 2_000_000), "odom_2", "a_longer_child_frame", *(
         rng.normal(size=n) for n in (3, 4, 3, 3)), rng.normal(size=36), rng.normal(size=36))
     child_only = estimate._replace(child_frame_id="base_link")  # a rebuild must not look at frame_id alone
     for view in (estimate, truth_view, estimate, child_only):  # other frames: the template is rebuilt

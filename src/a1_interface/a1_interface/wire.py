@@ -30,6 +30,7 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Imu, JointState
 
 from a1_interface import contract
+from a1_interface.conversions import ns_from_stamp, stamp_from_ns
 from a1_interface.sensors import GroundTruth, SensorReadings
 from gait_msgs.msg import FootContacts, MotorCommand
 
@@ -111,13 +112,12 @@ _NO_COVARIANCE = np.zeros(36)
 _NO_COVARIANCE.flags.writeable = False
 
 
-def odometry_view(stamp_ns: int, frame_id: str, child_frame_id: str, position, orientation, linear, angular,
+def odometry_view(stamp: Time, frame_id: str, child_frame_id: str, position, orientation, linear, angular,
                   pose_covariance: np.ndarray = _NO_COVARIANCE,
                   twist_covariance: np.ndarray = _NO_COVARIANCE) -> OdometryView:
     """An OdometryView from vectors: position [m] and orientation (x, y, z, w) in ``frame_id``,
     linear [m/s] and angular [rad/s] velocity in ``child_frame_id``; covariances row-major 6x6
     (zeros: unknown, as in a default message)."""
-    stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
     return OdometryView(
         Header(stamp, frame_id), child_frame_id,
         PoseWithCovariance(Pose(Vector3(*(float(v) for v in position)), Quaternion(*(float(v) for v in orientation))),
@@ -129,7 +129,7 @@ def odometry_view(stamp_ns: int, frame_id: str, child_frame_id: str, position, o
 def ground_truth_odometry(truth: GroundTruth, stamp_ns: int) -> OdometryView:
     """The simulator's ground truth as /sim/ground_truth/odom: pose in the world (as ``odom``),
     twist in ``base_link`` (REP-105); no covariance."""
-    return odometry_view(stamp_ns, contract.ODOM_FRAME, contract.BASE_FRAME, truth.base_position,
+    return odometry_view(stamp_from_ns(stamp_ns), contract.ODOM_FRAME, contract.BASE_FRAME, truth.base_position,
                          truth.base_orientation, truth.base_linear_velocity_body, truth.base_angular_velocity_body)
 
 
@@ -281,11 +281,14 @@ class MotorCommandEncoder:
         return self._template.finish(stamp_ns)
 
 
+# nav_msgs/Odometry's numbers after its two frame strings: position 3, orientation 4, pose
+# covariance 36, linear 3, angular 3, twist covariance 36 (float64, contiguous).
+_ODOMETRY_DOUBLES = 85
+
+
 class OdometryEncoder:
     """nav_msgs/Odometry from an OdometryView (a 500 Hz /odom as a Python message costs several
     times its bytes). The template is rebuilt when the view's frames change."""
-
-    _DOUBLES = 85  # position 3, orientation 4, pose covariance 36, linear 3, angular 3, twist covariance 36
 
     def __init__(self) -> None:
         self._frames: tuple[str, str] | None = None
@@ -297,7 +300,7 @@ class OdometryEncoder:
         reader = CdrReader(self._template.buffer, "Odometry template")
         reader.header()
         reader.string_bytes()
-        self._numbers = self._template.f64_view(reader.take(8 * self._DOUBLES, 8), self._DOUBLES)
+        self._numbers = self._template.f64_view(reader.take(8 * _ODOMETRY_DOUBLES, 8), _ODOMETRY_DOUBLES)
         self._frames = (frame_id, child_frame_id)
 
     def encode(self, odom: OdometryView) -> bytes:
@@ -310,8 +313,7 @@ class OdometryEncoder:
         numbers[43:46] = twist.linear
         numbers[46:49] = twist.angular
         numbers[49:85] = odom.twist.covariance
-        stamp = odom.header.stamp
-        return self._template.finish(stamp.sec * 1_000_000_000 + stamp.nanosec)
+        return self._template.finish(ns_from_stamp(odom.header.stamp))
 
 
 class SensorEncoders:
@@ -368,7 +370,7 @@ def decode_odometry(buffer: bytes) -> OdometryView:
     reader = CdrReader(buffer, "nav_msgs/Odometry")
     header = reader.header()
     child_frame_id = reader.string_bytes().decode()
-    numbers = reader.f64(OdometryEncoder._DOUBLES)
+    numbers = reader.f64(_ODOMETRY_DOUBLES)
     values = numbers[:7].tolist() + numbers[43:49].tolist()
     return OdometryView(header, child_frame_id,
                         PoseWithCovariance(Pose(Vector3(*values[0:3]), Quaternion(*values[3:7])), numbers[7:43]),

@@ -76,5 +76,5 @@ class OdometryFrontend:
         cov[3:, 3:] = np.eye(3) * GYRO_VARIANCE
         position = (self.position[0], self.position[1], est.height if est.height is not None else 0.0)
         gyro = imu.angular_velocity
-        return odometry_view(ns_from_stamp(joints.header.stamp), ODOM_FRAME, BASE_FRAME, position, est.orientation,
+        return odometry_view(joints.header.stamp, ODOM_FRAME, BASE_FRAME, position, est.orientation,
                              est.velocity_body, (gyro.x, gyro.y, gyro.z), POSE_COVARIANCE, cov.ravel())
