@@ -201,3 +201,12 @@ def test_velocity_command_counts_profile_time_from_its_first_tick_or_start_time(
         assert sent == pytest.approx(expected)
     finally:
         node.destroy_node()
+
+
+@pytest.mark.ros
+def test_velocity_command_start_time_is_minus_one_or_a_time(rclpy_context):
+    from gait_policy_node.velocity_command import VelocityCommandNode
+
+    expected = r"start_time must be -1 \(from the first tick\) or in \[0, 1e9\] s, got -0.5"
+    with pytest.raises(ConfigError, match=expected):
+        VelocityCommandNode(context=rclpy_context, parameter_overrides=[Parameter("start_time", value=-0.5)])
