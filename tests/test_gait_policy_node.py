@@ -55,11 +55,13 @@ def test_learned_policy_file_drives_gait_params(rclpy_context, tmp_path):
     def arrived() -> bool:
         cmd_pub.publish(cmd)
         odom_pub.publish(odom)
-        # Both: the node's shaped command approaches 1.5 m/s, and near saturation one output can
-        # match while the other still moves (once f matched and p_swing was 1e-7 off).
+        # Every output: the node's shaped command approaches 1.5 m/s, and near saturation some
+        # outputs match while others still move (once f matched and p_swing was 1e-7 off; once
+        # f and p_swing matched and two phase offsets had not).
         return bool(received) and all(
             math.isclose(getattr(received[-1], key), getattr(expected, key), rel_tol=1e-6)
-            for key in ("stepping_frequency", "swing_ratio"))
+            for key in ("stepping_frequency", "swing_ratio")) and np.allclose(
+            received[-1].phase_offsets, expected.phase_offsets, rtol=0.0, atol=1e-9)
 
     try:
         assert spin_until(executor, arrived, timeout_s=20.0), received[-1:] or "no /gait/params"
