@@ -99,6 +99,19 @@ def test_child_runs_below_a_realtime_parent(parent_priority, child_policy, child
         worker.close()
 
 
+def test_child_of_a_plain_parent_never_preempts_it_on_wake_up():
+    """From a SCHED_OTHER parent the solver runs as SCHED_BATCH: a submit's wake-up does not take
+    the CPU of the step that submitted."""
+    if os.sched_getscheduler(0) != os.SCHED_OTHER:
+        pytest.skip("this test process is not SCHED_OTHER")
+    worker = MpcWorkerProcess(MpcConfig())
+    try:
+        assert os.sched_getscheduler(worker._process.pid) == os.SCHED_BATCH
+        assert os.getpriority(os.PRIO_PROCESS, worker._process.pid) == os.getpriority(os.PRIO_PROCESS, 0)
+    finally:
+        worker.close()
+
+
 def test_a_plain_script_can_start_it(tmp_path):
     """Started as its own interpreter: a user's script needs no ``if __name__ == "__main__"`` guard
     (multiprocessing's spawn would run the script again in the child, and fail)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 from a1_common.command import JointCommand
 from a1_common.config import ConfigError
 from a1_common.files import TEMPORARY_MARK
+from a1_common.robot import a1
 from a1_interface.contract import CONTROL_QOS
 from a1_interface.conversions import motor_command_msg, ns_from_stamp, stamp_from_ns
 from a1_sim_bridge.joint_hold_node import JointHoldNode
@@ -334,6 +336,55 @@ def test_stepped_by_the_executor_thread_one_sensor_set_per_step(rclpy_context, c
         assert max(waits) <= 0.2 + 1e-9  # never past lockstep_timeout
     else:
         assert max(waits) <= 0.004 + 1e-9 and bridge.sim.steps >= 250
+
+
+@pytest.mark.ros
+def test_realtime_step_in_the_executor_thread_takes_a_command_sent_before_its_deadline(rclpy_context):
+    """Composed, the controller's work after its command (filter update, /odom) can end past the
+    bridge's deadline before the executor has taken the command. The step then first lets the
+    executor take what was sent (poll returns 0 without stepping) and applies it; a command sent
+    after the deadline is applied too but still counts as a missed deadline."""
+    overrides = [Parameter("clock_mode", value="realtime"), Parameter("real_time_factor", value=0.05)]
+    bridge = SimBridgeNode(own_thread=False, context=rclpy_context, parameter_overrides=overrides)
+    controller = Node("controller", context=rclpy_context)
+    stamps: list[int] = []
+    controller.create_subscription(JointState, "/joint_states", lambda m: stamps.append(ns_from_stamp(m.header.stamp)),
+                                   CONTROL_QOS)
+    pub = controller.create_publisher(MotorCommand, "/motor_command", CONTROL_QOS)
+    hold = JointCommand.hold(a1())
+    bridge_executor, controller_executor = (SingleThreadedExecutor(context=rclpy_context) for _ in range(2))
+    bridge_executor.add_node(bridge)
+    controller_executor.add_node(controller)
+
+    def step_with_command(late: bool) -> tuple[int, int]:
+        """One step whose command is sent (on time or late) but not taken when the step is due:
+        (uncommanded periods added, sim steps added)."""
+        assert spin_until(controller_executor, lambda: bool(stamps), timeout_s=10.0)
+        stamp = stamps[-1]
+        stamps.clear()
+        if late:  # the deadline of the step that is to apply it passed before the command was sent
+            bridge._published_at[stamp] = (bridge._published_at[stamp][0], time.time_ns() - 1)
+        pub.publish(motor_command_msg(hold, stamp_from_ns(stamp)))
+        before, steps = bridge.deadlines.uncommanded, bridge.sim.steps
+        bridge._next_deadline = time.monotonic() - 1e-4  # due now, the command not taken yet
+        assert bridge.poll() == 0.0 and bridge.sim.steps == steps  # first: take what was sent
+        accepted = bridge.watchdog.accepted
+        assert spin_until(bridge_executor, lambda: bridge.watchdog.accepted > accepted, timeout_s=10.0)
+        bridge.poll()
+        return bridge.deadlines.uncommanded - before, bridge.sim.steps - steps
+
+    try:
+        bridge.poll()  # the start pose's sensors
+        assert step_with_command(late=False) == (0, 1)
+        assert step_with_command(late=False) == (0, 1)
+        assert step_with_command(late=True) == (1, 1)  # applied, and counted as a missed deadline
+        assert bridge._applied_stamp_ns == bridge.sim.steps * bridge.dt_ns - STEP_NS
+    finally:
+        bridge_executor.shutdown()
+        controller_executor.shutdown()
+        bridge.shutdown()
+        for n in (bridge, controller):
+            n.destroy_node()
 
 
 @pytest.mark.ros

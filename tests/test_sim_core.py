@@ -142,6 +142,8 @@ def test_deadline_monitor_counts_missed_periods_and_the_longest_gap_per_window()
     assert monitor.window() == {"commanded_steps_window": 0, "latency_median_ms": "n/a",
                                 "latency_p99_ms": "n/a", "longest_command_gap_ms": "2"}  # a new window
     assert monitor.uncommanded == 3  # totals are kept across windows
+    monitor.count(6, late=True)  # a new command, but sent after the period's deadline: missed
+    assert (monitor.uncommanded, monitor.window()["longest_command_gap_ms"]) == (4, "4")
     with pytest.raises(ConfigError, match="period"):
         DeadlineMonitor(period=0.0)
 

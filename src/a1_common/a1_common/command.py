@@ -264,9 +264,10 @@ class DeadlineMonitor:
         self._longest_run = 0  # ... the longest in this window
         self._latencies: list[float] = []  # [s] in this window
 
-    def count(self, accepted: int) -> None:
-        """One period, with ``accepted`` the watchdog's count of commands accepted so far."""
-        fresh = accepted != self._accepted_before
+    def count(self, accepted: int, late: bool = False) -> None:
+        """One period, with ``accepted`` the watchdog's count of commands accepted so far; ``late``:
+        the new command was sent only after the period's deadline (still a missed deadline)."""
+        fresh = accepted != self._accepted_before and not late
         self._accepted_before = accepted
         self.periods += 1
         self.uncommanded += not fresh

@@ -163,13 +163,18 @@ class SimBridgeNode(Node):
         # sensor-to-command latency as the robot sees it, over the last /diagnostics period.
         self.deadlines = DeadlineMonitor(self.sim.config.time_step)
         self._lowest_base_height = float("inf")  # [m] since the last /diagnostics
-        # Wall time each step's sensors went out, for the latency of the command stamped with it.
-        self._published_at: collections.OrderedDict[int, float] = collections.OrderedDict()
+        # Each step's sensors: when they went out (monotonic [s], for the latency of the command stamped
+        # with them) and the deadline of the step that is to apply that command (system clock [ns]).
+        self._published_at: collections.OrderedDict[int, tuple[float, float]] = collections.OrderedDict()
         self.failure: Exception | None = None
         self._thread = threading.Thread(target=self._loop, name="sim_loop", daemon=True) if own_thread else None
         self._period = self.sim.config.time_step / self.real_time_factor  # realtime pacing, wall seconds
         self._next_deadline: float | None = None  # poll: monotonic time of the next step (None: not begun)
         self._waiting_since = 0.0  # poll, lockstep: when the current step's sensors went out
+        # poll, realtime in the executor's thread: the deadline at which poll last let the executor
+        # take what was published before stepping (see poll)
+        self._drained_for: float | None = None
+        self._command_late = False  # realtime: the newest command was sent after the deadline it was for
         self.get_logger().info(
             f"A1 sim ready: world={self.sim.config.world} clock_mode={self.clock_mode} "
             f"dt={self.sim.config.time_step}s command_timeout={self.watchdog.timeout}s "
@@ -178,8 +183,9 @@ class SimBridgeNode(Node):
             self._thread.start()
 
     # --- callbacks (executor thread) ---------------------------------------------------------
-    def _on_command(self, raw: bytes) -> None:
-        """A /motor_command as its CDR bytes (see wire.py: this runs 500 times a second)."""
+    def _on_command(self, raw: bytes, info: dict) -> None:
+        """A /motor_command as its CDR bytes (see wire.py: this runs 500 times a second), and its
+        DDS message info (when it was published)."""
         with self._lock:
             # Invalid commands are rejected (and counted) whatever their stamp.
             command, stamp_ns = wire.decode_motor_command(raw)
@@ -190,7 +196,7 @@ class SimBridgeNode(Node):
                 return
             published = self._published_at.pop(stamp_ns, None)  # the first command for a step counts
             if published is not None:
-                self.deadlines.latency(time.monotonic() - published)
+                self.deadlines.latency(time.monotonic() - published[0])
             now_ns = self.sim.steps * self.dt_ns
             if self.clock_mode == "lockstep":
                 stale = stamp_ns != now_ns  # stamped for another step: not for this one
@@ -201,6 +207,8 @@ class SimBridgeNode(Node):
                 return
             self.watchdog.accept(valid, self.sim.time)
             self._pending_stamp_ns = stamp_ns
+            if published is not None:  # sent (DDS source time) after the step that was to apply it began?
+                self._command_late = info["source_timestamp"] > published[1]
             self._lock.notify_all()
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
@@ -264,6 +272,7 @@ class SimBridgeNode(Node):
 
     def _advance(self):
         """One 2 ms step with the command in force (lock held); its sensor readings."""
+        late, self._command_late = self._command_late, False
         if self.watchdog.accepted_since_reset == 0:
             # Nobody has commanded this run yet (start-up, discovery): hold the sim in its start pose
             # and offer the sensors again, so every run starts alike (a robot left in damping while
@@ -273,7 +282,8 @@ class SimBridgeNode(Node):
         self._applied_damping = command.mode == MotorMode.DAMPING
         self._commanded_damping = self._applied_damping and not self.watchdog.in_fallback
         self._applied_stamp_ns = self._pending_stamp_ns
-        self.deadlines.count(self.watchdog.accepted)  # a missed 2 ms deadline: nothing new to apply
+        # A missed 2 ms deadline: nothing new to apply, or a command sent only after the deadline
+        self.deadlines.count(self.watchdog.accepted, late=late)
         return self.sim.step(command)
 
     def poll(self) -> float:
@@ -302,6 +312,15 @@ class SimBridgeNode(Node):
                 readings = self._advance()
             elif now < self._next_deadline:
                 return self._next_deadline - now
+            elif (self._thread is None and self._drained_for != self._next_deadline
+                  and self._pending_stamp_ns != self.sim.steps * self.dt_ns):
+                # Due, and this step's command is not in, but in one thread with the controller it
+                # may be published and not yet taken: the controller's work after the command (the
+                # filter update, /odom) can run past the deadline. One wait with no timeout first
+                # (return 0), so the step applies that command instead of the previous one; one sent
+                # after the deadline still counts as a missed deadline (_on_command, _advance).
+                self._drained_for = self._next_deadline
+                return 0.0
             else:
                 readings = self._advance()
         self._publish(readings)
@@ -350,7 +369,12 @@ class SimBridgeNode(Node):
         self.pub_contacts.publish(contacts)
         # Joint states last: in lockstep a controller may take it as "this step's sensors are out".
         with self._lock:  # before publishing: a fast answer must find its step
-            self._published_at[stamp_ns] = time.monotonic()
+            now = time.monotonic()
+            # realtime: the deadline of the step that is to apply the answer, on the system clock of
+            # DDS source timestamps [ns] (lockstep waits for the answer: no deadline)
+            deadline_ns = (time.time_ns() + round((self._next_deadline + self._period - now) * 1e9)
+                           if self.clock_mode == "realtime" and self._next_deadline is not None else math.inf)
+            self._published_at[stamp_ns] = (now, deadline_ns)
             while len(self._published_at) > 50:  # 0.1 s: an answer later than that is no answer
                 self._published_at.popitem(last=False)
         self.pub_joints.publish(joints)

@@ -3,8 +3,9 @@
 Why a process and not a thread: a worker thread shares the controller's GIL, so on two cores its
 solves slow the 2 ms step, and at SCHED_FIFO the step starves it (same-priority FIFO threads do not
 time-slice) while the step keeps applying an ageing force plan. A child process has its own
-interpreter; it runs one realtime priority below its parent when the parent is SCHED_FIFO, so it
-takes only CPU the 2 ms path leaves idle, and it never holds a lock the step needs.
+interpreter; it runs one realtime priority below its parent when the parent is SCHED_FIFO (as a
+SCHED_BATCH task otherwise), so it takes only CPU the 2 ms path leaves idle, and it never holds a
+lock the step needs.
 
 The pipe carries the MPC's own dataclasses between two processes of this program (pickled by
 ``multiprocessing``); nothing a user passes in is ever unpickled. The child exits when the pipe
@@ -41,13 +42,19 @@ def _serve(conn: Connection) -> None:
 
 
 def _below_parent_priority() -> None:
-    """At SCHED_FIFO p (inherited), drop to p - 1: the solve yields to every thread of the 2 ms path."""
+    """At SCHED_FIFO p (inherited), drop to p - 1: the solve yields to every thread of the 2 ms path.
+    Otherwise SCHED_BATCH (same nice): a request written to the pipe wakes the solver, and a plain
+    SCHED_OTHER solver then often took the CPU of the step that woke it (submit took 0.66 ms median
+    in the realtime graph, 1.6 ms at worst, the step's commands late); a batch task never preempts
+    on wake-up and runs on the idle core or once the step sleeps (submit 0.11-0.13 ms median)."""
     if os.sched_getscheduler(0) == os.SCHED_FIFO:
         priority = os.sched_getparam(0).sched_priority
         if priority > 1:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority - 1))
         else:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    else:
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
 
 
 class MpcWorkerProcess:
