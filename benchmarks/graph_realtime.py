@@ -9,7 +9,9 @@ reads the sim bridge's own counts from /diagnostics for ``--seconds`` of wall ti
 subscribes to nothing else, so it takes no CPU from the graph it measures):
 - control rate: /motor_command messages the bridge accepted per second (goal 500 Hz);
 - missed deadlines: share of the bridge's 2 ms steps applied with no new command since the step
-  before (the robot then gets the previous command again);
+  before (the robot then gets the previous command again), or, with the sim bridge, with one sent
+  (DDS source time) only after that step's deadline (since 2026-12-05; before, a command that came
+  late but before the next step counted as on time);
 - longest command gap: the longest time between two steps with a new command (2 ms: none missed);
 - sensor-to-command latency: wall time from the bridge publishing step k's sensors to it receiving
   the command stamped k; the median of the per-second medians, and the worst per-second p99;

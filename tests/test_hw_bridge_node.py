@@ -35,6 +35,7 @@ from graph_helpers import CONFIG, Graph
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.serialization import serialize_message
 from ros_helpers import spin_until
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import String
@@ -299,3 +300,25 @@ def test_nodes_refuse_bad_and_runtime_parameter_changes(rclpy_context):
         for node in (bridge, robot):
             node.shutdown()
             node.destroy_node()
+
+
+@pytest.mark.ros
+def test_a_command_handed_over_in_process_is_offered_once(rclpy_context):
+    """Composed with the controller (a1_bringup.control_chain), the bridge gets each command twice:
+    handed over as it is sent (take_command), then its copy off the wire, which must not count as a
+    second command; a different command off the wire still does."""
+    bridge = HardwareBridgeNode(context=rclpy_context, parameter_overrides=[
+        Parameter("robot_ip", value="127.0.0.1"), Parameter("local_ip", value="127.0.0.1"),
+        Parameter("local_port", value=0)])
+    offered: list[tuple[JointCommand, int]] = []
+    bridge.bridge.offer_command = lambda command, stamp_ns: offered.append((command, stamp_ns)) or "accepted"
+    hold = JointCommand.hold(a1())
+    first, second = (serialize_message(motor_command_msg(hold, stamp_from_ns(ns))) for ns in (2_000_000, 4_000_000))
+    try:
+        bridge.take_command(first)
+        bridge._on_command(first)  # its wire copy
+        bridge._on_command(second)
+        assert [stamp for _, stamp in offered] == [2_000_000, 4_000_000]
+    finally:
+        bridge.shutdown()
+        bridge.destroy_node()

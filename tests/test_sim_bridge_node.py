@@ -20,6 +20,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.serialization import serialize_message
 from ros_helpers import spin_until
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
@@ -385,6 +386,30 @@ def test_realtime_step_in_the_executor_thread_takes_a_command_sent_before_its_de
         bridge.shutdown()
         for n in (bridge, controller):
             n.destroy_node()
+
+
+@pytest.mark.ros
+def test_a_command_handed_over_in_process_steps_lockstep_at_once_and_its_wire_copy_is_dropped(rclpy_context):
+    """Composed (a1_bringup.control_chain), the controller hands its command to the bridge as it
+    sends it: a lockstep step is due at once, with no wait for the executor, and the copy that
+    then comes over the wire is neither a second command nor a late one."""
+    overrides = [Parameter("clock_mode", value="lockstep"), Parameter("lockstep_timeout", value=5.0)]
+    bridge = SimBridgeNode(own_thread=False, context=rclpy_context, parameter_overrides=overrides)
+    hold = JointCommand.hold(a1())
+    try:
+        bridge.poll()  # the start pose's sensors, stamped 0
+        raw = serialize_message(motor_command_msg(hold, stamp_from_ns(0)))
+        bridge.take_command(raw)
+        assert bridge.watchdog.accepted == 1
+        assert bridge.poll() == 0.0 and bridge.sim.steps == 1  # stepped with it, no executor in between
+        bridge._on_command(raw, {"source_timestamp": time.time_ns()})  # its wire copy, after the step
+        assert (bridge.watchdog.accepted, bridge._late_commands) == (1, 0)
+        bridge._on_command(serialize_message(motor_command_msg(hold, stamp_from_ns(STEP_NS))),
+                           {"source_timestamp": time.time_ns()})  # the next step's command
+        assert bridge.watchdog.accepted == 2 and bridge.poll() == 0.0 and bridge.sim.steps == 2
+    finally:
+        bridge.shutdown()
+        bridge.destroy_node()
 
 
 @pytest.mark.ros

@@ -5,8 +5,10 @@ with their own names, parameters and topics, spun by one executor in one process
 and the command it triggers never cross a process boundary, so the 2 ms step pays no wake-up of
 another process and no shared-memory transport (Fast DDS delivers within a process directly).
 With the sim bridge, the simulation steps in the executor's thread too (SimBridgeNode.poll): one
-Python thread does the whole step, and no second one waits for the GIL inside it. What another
-process sees on the wire (``ros2 topic echo``) is unchanged.
+Python thread does the whole step, and no second one waits for the GIL inside it; and the controller
+hands each command to the bridge (sim or hardware) as it publishes it (``take_command``), so the
+step need not wait for the executor to take it back off the wire. What another process sees on the wire
+(``ros2 topic echo``) is unchanged.
 
     control_chain --bridge sim [--estimator] --set sim_bridge.clock_mode=realtime ... \\
         --ros-args --params-file config/a1_sim_bridge.yaml --params-file config/convex_mpc.yaml ...
@@ -91,12 +93,20 @@ def main(args: list[str] | None = None) -> None:
     factories = [functools.partial(cls, parameter_overrides=overrides[name]) for name, cls in nodes]
     if options.bridge == "sim":  # the simulation steps in the executor's thread: one Python thread
         factories[0] = functools.partial(factories[0], own_thread=False)
-    run_nodes("control_chain", factories, argv, poll=_poll_sim if options.bridge == "sim" else None)
+    run_nodes("control_chain", factories, argv, poll=_poll_sim if options.bridge == "sim" else None,
+              connect=_hand_commands_to_bridge)
 
 
 def _poll_sim(nodes: list[Any]) -> float:
     """Between the executor's waits: the sim bridge (created first) steps when due."""
     return nodes[0].poll()
+
+
+def _hand_commands_to_bridge(nodes: list[Any]) -> None:
+    """The controller (created last) hands each command to the bridge (first) as it sends it: in
+    one thread the bridge would otherwise take it off the wire only after the controller's work
+    after the command (the filter update, /odom) and the executor's next wait."""
+    nodes[-1].command_sinks.append(nodes[0].take_command)
 
 
 if __name__ == "__main__":

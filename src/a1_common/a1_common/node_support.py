@@ -303,7 +303,8 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
 
 
 def run_nodes(name: str, factories: Sequence[Callable[[], Any]], args: list[str] | None = None, *,
-              poll: Callable[[Sequence[Any]], float] | None = None) -> None:
+              poll: Callable[[Sequence[Any]], float] | None = None,
+              connect: Callable[[Sequence[Any]], None] | None = None) -> None:
     """Create the nodes from ``factories`` (in order) and spin them in one DirectExecutor until
     Ctrl-C / SIGTERM / shutdown; one node a process (``ros2 run`` of a node) or several composed in
     one (a1_bringup's control_chain), each its own rclpy node with its own name and parameters.
@@ -311,7 +312,8 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Any]], args: list[str]
     Configuration errors end the process with exit code 2 and one readable line; a node that sets
     ``node.failure`` (its own thread died) ends it with exit code 1. The nodes are shut down in the
     reverse order of their creation (a controller stops before the bridge it commands). ``poll``,
-    given the nodes, runs between the executor's waits (see DirectExecutor.spin).
+    given the nodes, runs between the executor's waits (see DirectExecutor.spin); ``connect``, given
+    the nodes, runs once they all exist (in-process hand-offs between them).
     """
     rclpy.init(args=args)
     nodes: list[Any] = []
@@ -320,6 +322,8 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Any]], args: list[str]
         for factory in factories:
             nodes.append(factory())
             executor.add_node(nodes[-1])
+        if connect is not None:
+            connect(nodes)
         # Start-up objects (modules, the nodes) are never garbage: keeping them out of the cyclic
         # collector's full passes keeps those passes from stalling a 2 ms control step.
         gc.freeze()

@@ -50,6 +50,7 @@ class HardwareBridgeNode(Node):
         self.bridge = HardwareBridge(
             config, publish=self._publish, clock_ns=lambda: self.get_clock().now().nanoseconds,
             publish_clock=self._publish_clock if self.pub_clock is not None else None, on_failure=self._on_failure)
+        self._taken: bytes | None = None  # the last command a controller in this process handed over
         self.create_subscription(MotorCommand, contract.MOTOR_COMMAND, self._on_command, CONTROL_QOS, raw=True)
         if config.swing_recalibration:
             self.create_subscription(GaitState, contract.GAIT_STATE, self._on_gait_state, CONTROL_QOS)
@@ -72,8 +73,20 @@ class HardwareBridgeNode(Node):
         self.get_logger().fatal(f"A1 link thread failed, motors sent to damping, stopping the node: {exc!r}")
         self.context.try_shutdown()  # ends spin() in main(), which exits non-zero
 
+    def take_command(self, raw: bytes) -> None:
+        """A /motor_command's CDR bytes handed over by a controller in this process as it sends
+        them (a1_bringup.control_chain): offered to the link at once, not after the executor's next
+        wait. The copy that then comes over the wire is dropped (_on_command)."""
+        self._offer(raw)
+        self._taken = raw
+
     def _on_command(self, raw: bytes) -> None:
         """A /motor_command as its CDR bytes (a1_interface.wire: this runs 500 times a second)."""
+        if raw == self._taken:  # the wire copy of the command take_command offered
+            return
+        self._offer(raw)
+
+    def _offer(self, raw: bytes) -> None:
         result = self.bridge.offer_command(*wire.decode_motor_command(raw))
         if result == "rejected":
             self.get_logger().warning(f"rejected /motor_command: {self.bridge.logic.watchdog.last_error}",

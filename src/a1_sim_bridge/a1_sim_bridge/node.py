@@ -175,6 +175,7 @@ class SimBridgeNode(Node):
         # take what was published before stepping (see poll)
         self._drained_for: float | None = None
         self._command_late = False  # realtime: the newest command was sent after the deadline it was for
+        self._pending_raw: bytes | None = None  # the newest accepted command's bytes (see take_command)
         self.get_logger().info(
             f"A1 sim ready: world={self.sim.config.world} clock_mode={self.clock_mode} "
             f"dt={self.sim.config.time_step}s command_timeout={self.watchdog.timeout}s "
@@ -183,10 +184,18 @@ class SimBridgeNode(Node):
             self._thread.start()
 
     # --- callbacks (executor thread) ---------------------------------------------------------
+    def take_command(self, raw: bytes) -> None:
+        """A /motor_command's CDR bytes handed over by a controller in this process as it sends
+        them (a1_bringup.control_chain): taken at once, not after the executor's next wait. The
+        copy that then comes over the wire is dropped (_on_command)."""
+        self._on_command(raw, {"source_timestamp": time.time_ns()})
+
     def _on_command(self, raw: bytes, info: dict) -> None:
         """A /motor_command as its CDR bytes (see wire.py: this runs 500 times a second), and its
         DDS message info (when it was published)."""
         with self._lock:
+            if raw == self._pending_raw:  # the command in force again (its wire copy after take_command)
+                return
             # Invalid commands are rejected (and counted) whatever their stamp.
             command, stamp_ns = wire.decode_motor_command(raw)
             valid = self.watchdog.check(command)
@@ -206,7 +215,7 @@ class SimBridgeNode(Node):
                 self._late_commands += 1
                 return
             self.watchdog.accept(valid, self.sim.time)
-            self._pending_stamp_ns = stamp_ns
+            self._pending_stamp_ns, self._pending_raw = stamp_ns, raw
             if published is not None:  # sent (DDS source time) after the step that was to apply it began?
                 self._command_late = info["source_timestamp"] > published[1]
             self._lock.notify_all()
@@ -348,6 +357,7 @@ class SimBridgeNode(Node):
         self.watchdog.clear_command()
         self._applied_damping = self._commanded_damping = False
         self._pending_stamp_ns = self._applied_stamp_ns = -1
+        self._pending_raw = None
         self._published_at.clear()
         self._lowest_base_height = float("inf")  # a fall before the reset is not this run's
         if self.recorder is not None:

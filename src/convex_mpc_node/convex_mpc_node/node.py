@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,6 +137,9 @@ class ConvexMpcNode(Node):
             estimate_after_command=bool(params["estimate_after_command"]), control=self._control,
             republish=self._republish, on_estimate=self._on_estimate, on_restart=self._on_sim_reset, log=self._log)
         self._last_command: bytes | None = None  # the last step's command (CDR, see a1_interface.wire)
+        # Composed with its bridge in one process (a1_bringup.control_chain): the bridge takes each
+        # command here at once, as well as from the wire (it drops that copy).
+        self.command_sinks: list[Callable[[bytes], None]] = []
         self._command_encoder = wire.MotorCommandEncoder()
 
         self.pub_command = self.create_publisher(MotorCommand, contract.MOTOR_COMMAND, CONTROL_QOS)
@@ -229,7 +233,14 @@ class ConvexMpcNode(Node):
     # --- what the step trigger calls back ------------------------------------------------------
     def _republish(self) -> None:
         if self._last_command is not None:
-            self.pub_command.publish(self._last_command)
+            self._send_command(self._last_command)
+
+    def _send_command(self, raw: bytes) -> None:
+        """To a bridge in this process first (no wait for the executor to take it back off the
+        wire), then on the wire for every other subscriber."""
+        for sink in self.command_sinks:
+            sink(raw)
+        self.pub_command.publish(raw)
 
     def _on_estimate(self, sensors: tuple, estimate) -> None:
         """Embedded estimator: /odom and /tf, every odom_every_steps control steps."""
@@ -267,7 +278,7 @@ class ConvexMpcNode(Node):
         result = self.supervisor.step(stamp_ns * 1e-9, obs, velocity_fresh=velocity_world is not None,
                                       backup_velocity=velocity_world is None and backup_velocity is not None)
         self._last_command = self._command_encoder.encode(result.command, stamp_ns)
-        self.pub_command.publish(self._last_command)
+        self._send_command(self._last_command)
         elapsed = time.perf_counter() - t0
         self._steps += 1
         if result.state == "fallen" and self._state != "fallen":
