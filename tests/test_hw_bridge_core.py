@@ -312,6 +312,30 @@ def test_virtual_a1_realtime_streams_states_at_500_hz_then_damps(shared_sim_conf
         robot.close()
 
 
+def test_realtime_sends_count_a_command_over_a_period_late_as_missed():
+    """A command that comes more than one control period after the state it answers was published
+    still goes out, but its send counts as a missed deadline, as the sim bridge counts one sent after
+    its step's deadline; one in time does not."""
+    bridge = HardwareBridge(BridgeConfig(robot_ip="127.0.0.1", local_ip="127.0.0.1", local_port=0),
+                            publish=lambda readings, stamp_ns: None, clock_ns=time.time_ns)
+    try:
+        bridge.logic.phase = Phase.RUNNING
+        now = time.monotonic()
+        bridge._published_at.update({2_000_000: now, 4_000_000: now - 0.010})  # 10 ms: five periods ago
+        hold = JointCommand.hold(ROBOT)
+        for stamp_ns, missed in ((2_000_000, 0), (4_000_000, 1)):
+            assert bridge.offer_command(hold, stamp_ns) == "accepted"
+            before = bridge.deadlines.uncommanded
+            with bridge._lock:
+                bridge._count_send()
+            assert bridge.deadlines.uncommanded - before == missed
+        with bridge._lock:
+            bridge._count_send()  # nothing new since: missed
+        assert bridge.deadlines.uncommanded == 2
+    finally:
+        bridge.link.close()
+
+
 def test_bridge_stands_a_dropped_virtual_a1_up_over_udp_in_lockstep():
     """The two cores over real sockets: damping, stand-up, calibration, hand-over to a 'controller'."""
     robot = VirtualA1(VirtualA1Config(port=0, clock_mode="lockstep", foot_force_offset=15.0),

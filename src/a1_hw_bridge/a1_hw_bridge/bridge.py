@@ -237,8 +237,10 @@ class HardwareBridge:
         self._prev_stamp_ns = -1  # stamp of the state handled before the latest one
         self._published_at: dict[int, float] = {}  # realtime: stamp -> monotonic time it was published
         # Realtime: the sends on the control period from the first command on, those with no new
-        # command since the send before (missed deadlines), and state-to-command latency.
+        # command since the send before or with one that came over a period after its state was
+        # published (missed deadlines), and state-to-command latency.
         self.deadlines = DeadlineMonitor(self.config.control_period)
+        self._command_late = False  # realtime: the newest command came over a control period late
         self._raw_forces: deque[tuple[int, np.ndarray]] = deque(maxlen=100)
         self._schedules: list[tuple[int, np.ndarray]] = []
         self._tick_wraps = 0
@@ -295,7 +297,9 @@ class HardwareBridge:
                 if issued is not None and time.monotonic() - issued >= self.config.command_timeout:
                     issued = None
                 if issued is not None and stamp_ns != self._commanded_stamp_ns:  # the first answer counts
-                    self.deadlines.latency(time.monotonic() - issued)
+                    latency = time.monotonic() - issued
+                    self.deadlines.latency(latency)
+                    self._command_late = latency > self.config.control_period
             if issued is None:  # not an answer to a recent state of this bridge
                 self.counters.late_commands += 1
                 return "late"
@@ -367,7 +371,8 @@ class HardwareBridge:
         """Realtime: one period's send, and whether a new command came since the last (lock held)."""
         accepted = self.logic.watchdog.accepted
         if accepted:  # before the first command there is no deadline to miss
-            self.deadlines.count(accepted)
+            self.deadlines.count(accepted, late=self._command_late)
+        self._command_late = False
 
     def _run_lockstep(self) -> None:
         with self._lock:
