@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -27,6 +28,7 @@ from a1_hw_bridge.virtual_a1 import VirtualA1, VirtualA1Config, VirtualA1Server
 from a1_interface.sensors import SensorReadings
 from a1_sim_bridge.sim import SimConfig
 
+from a1_hw_bridge import bridge as bridge_module
 from a1_hw_bridge import protocol as wire
 
 ROBOT = a1()
@@ -312,15 +314,16 @@ def test_virtual_a1_realtime_streams_states_at_500_hz_then_damps(shared_sim_conf
         robot.close()
 
 
-def test_realtime_sends_count_a_command_over_a_period_late_as_missed():
+def test_realtime_sends_count_a_command_over_a_period_late_as_missed(monkeypatch):
     """A command that comes more than one control period after the state it answers was published
     still goes out, but its send counts as a missed deadline, as the sim bridge counts one sent after
     its step's deadline; one in time does not."""
     bridge = HardwareBridge(BridgeConfig(robot_ip="127.0.0.1", local_ip="127.0.0.1", local_port=0),
                             publish=lambda readings, stamp_ns: None, clock_ns=time.time_ns)
+    now = 1000.0  # [s] the bridge's monotonic clock, held still: a loaded machine must not make it late
+    monkeypatch.setattr(bridge_module, "time", SimpleNamespace(monotonic=lambda: now))
     try:
         bridge.logic.phase = Phase.RUNNING
-        now = time.monotonic()
         bridge._published_at.update({2_000_000: now, 4_000_000: now - 0.010})  # 10 ms: five periods ago
         hold = JointCommand.hold(ROBOT)
         for stamp_ns, missed in ((2_000_000, 0), (4_000_000, 1)):

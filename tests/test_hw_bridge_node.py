@@ -313,12 +313,15 @@ def test_a_command_handed_over_in_process_is_offered_once(rclpy_context):
     offered: list[tuple[JointCommand, int]] = []
     bridge.bridge.offer_command = lambda command, stamp_ns: offered.append((command, stamp_ns)) or "accepted"
     hold = JointCommand.hold(a1())
-    first, second = (serialize_message(motor_command_msg(hold, stamp_from_ns(ns))) for ns in (2_000_000, 4_000_000))
+    first, second, third = (serialize_message(motor_command_msg(hold, stamp_from_ns(ns)))
+                            for ns in (2_000_000, 4_000_000, 6_000_000))
     try:
         bridge.take_command(first)
         bridge._on_command(first)  # its wire copy
-        bridge._on_command(second)
-        assert [stamp for _, stamp in offered] == [2_000_000, 4_000_000]
+        bridge._on_command(second)  # from another process
+        bridge.take_command(third)
+        bridge._on_command(second)  # a wire copy older than the command handed over last: never over it
+        assert [stamp for _, stamp in offered] == [2_000_000, 4_000_000, 6_000_000]
     finally:
         bridge.shutdown()
         bridge.destroy_node()

@@ -99,6 +99,21 @@ def test_child_runs_below_a_realtime_parent(parent_priority, child_policy, child
         worker.close()
 
 
+def test_child_of_an_idle_parent_starts_and_stays_idle():
+    """A parent run as SCHED_IDLE (a background job, in a process of its own here): the worker
+    keeps that policy, and starts."""
+    script = ("import os\n"
+              "os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))\n"
+              "from convex_mpc_node.mpc import MpcConfig\n"
+              "from convex_mpc_node.mpc_worker import MpcWorkerProcess\n"
+              "worker = MpcWorkerProcess(MpcConfig())\n"
+              "print(os.sched_getscheduler(worker._process.pid))\n"
+              "worker.close()\n")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert int(result.stdout.split()[-1]) == os.SCHED_IDLE
+
+
 def test_child_of_a_plain_parent_never_preempts_it_on_wake_up():
     """From a SCHED_OTHER parent the solver runs as SCHED_BATCH: a submit's wake-up does not take
     the CPU of the step that submitted."""

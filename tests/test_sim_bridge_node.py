@@ -407,6 +407,29 @@ def test_a_command_handed_over_in_process_steps_lockstep_at_once_and_its_wire_co
         bridge._on_command(serialize_message(motor_command_msg(hold, stamp_from_ns(STEP_NS))),
                            {"source_timestamp": time.time_ns()})  # the next step's command
         assert bridge.watchdog.accepted == 2 and bridge.poll() == 0.0 and bridge.sim.steps == 2
+        stale = serialize_message(motor_command_msg(hold, stamp_from_ns(0)))  # for a step long gone
+        bridge.take_command(stale)
+        bridge._on_command(stale, {"source_timestamp": time.time_ns()})  # its wire copy: not counted again
+        assert (bridge.watchdog.accepted, bridge._late_commands) == (2, 1)
+    finally:
+        bridge.shutdown()
+        bridge.destroy_node()
+
+
+@pytest.mark.ros
+def test_realtime_never_applies_an_older_steps_command_over_a_newer_one(rclpy_context):
+    """Realtime takes the newest command whatever its step, but one answering an older step than
+    the command in force (a copy delivered late) is stale: the newer one stays."""
+    overrides = [Parameter("clock_mode", value="realtime"), Parameter("real_time_factor", value=0.05)]
+    bridge = SimBridgeNode(own_thread=False, context=rclpy_context, parameter_overrides=overrides)
+    hold = JointCommand.hold(a1())
+    try:
+        bridge.poll()  # the start pose's sensors
+        bridge._on_command(serialize_message(motor_command_msg(hold, stamp_from_ns(STEP_NS))),
+                           {"source_timestamp": time.time_ns()})
+        bridge._on_command(serialize_message(motor_command_msg(hold, stamp_from_ns(0))),
+                           {"source_timestamp": time.time_ns()})
+        assert (bridge._pending_stamp_ns, bridge.watchdog.accepted, bridge._late_commands) == (STEP_NS, 1, 1)
     finally:
         bridge.shutdown()
         bridge.destroy_node()

@@ -12,6 +12,7 @@ import atexit
 import collections
 import gc
 import importlib
+import inspect
 import json
 import os
 import sys
@@ -74,11 +75,11 @@ def _install(path: str) -> None:
 
     refresh = node_support.DirectExecutor._refresh_entities
 
-    def traced_refresh(self):  # each subscription callback, labelled by its topic
+    def traced_refresh(self):  # each (plain) subscription callback, labelled by its topic
         refresh(self)
         for sub in self._subs:
             callback = sub.callback
-            if getattr(callback, "_timeline", False):
+            if getattr(callback, "_timeline", False) or inspect.iscoroutinefunction(callback):
                 continue
 
             def traced(*args, _callback=callback, _label=f"cb:{sub.topic_name}"):
@@ -89,10 +90,9 @@ def _install(path: str) -> None:
                     events.append((_label, start, clock()))
 
             traced._timeline = True
-            with_info = sub._callback_type
+            callback_type = sub._callback_type
             sub.callback = traced
-            sub._callback_type = with_info  # the setter guesses it from the signature: keep the original
-        self._direct = [(sub, flag) for sub, flag in self._direct]
+            sub._callback_type = callback_type  # the setter guesses it from the signature: keep the original
 
     node_support.DirectExecutor._refresh_entities = traced_refresh
     dispatch = node_support.DirectExecutor._dispatch_ready

@@ -252,8 +252,9 @@ class CommandWatchdog:
 class DeadlineMonitor:
     """What the robot sees of its controller, counted by a bridge once per control period (the sim
     bridge's steps, the hardware bridge's sends): periods with no new command since the one before
-    (a missed deadline), the longest run of them, and the sensor-to-command latency. One class, so
-    that both bridges count alike and report the same figures."""
+    or with one that came too late (a missed deadline), the longest run of them, and the
+    sensor-to-command latency. One class, so that both bridges count alike and report the same
+    figures."""
 
     def __init__(self, period: float) -> None:
         self.period = require_range("period", period, 0.0, 1.0, low_open=True)  # [s]
@@ -266,7 +267,9 @@ class DeadlineMonitor:
 
     def count(self, accepted: int, late: bool = False) -> None:
         """One period, with ``accepted`` the watchdog's count of commands accepted so far; ``late``:
-        the new command was sent only after the period's deadline (still a missed deadline)."""
+        the new command came too late for this period by the bridge's rule (the sim bridge: sent
+        after the step's deadline; the hardware bridge: over a period after its state), which is
+        still a missed deadline."""
         fresh = accepted != self._accepted_before and not late
         self._accepted_before = accepted
         self.periods += 1

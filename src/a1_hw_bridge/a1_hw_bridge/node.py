@@ -9,6 +9,7 @@ bridge, encoded by a1_interface.wire) and /diagnostics; subscribes /motor_comman
 from __future__ import annotations
 
 import numpy as np
+from a1_common.command import JointCommand
 from a1_common.config import recording_constraints
 from a1_common.node_support import constrain_parameters, declare_settings, diagnostic_array, run_node
 from a1_common.robot import a1
@@ -51,6 +52,7 @@ class HardwareBridgeNode(Node):
             config, publish=self._publish, clock_ns=lambda: self.get_clock().now().nanoseconds,
             publish_clock=self._publish_clock if self.pub_clock is not None else None, on_failure=self._on_failure)
         self._taken: bytes | None = None  # the last command a controller in this process handed over
+        self._taken_stamp_ns = -1  # ... and its stamp (-1: none handed over)
         self.create_subscription(MotorCommand, contract.MOTOR_COMMAND, self._on_command, CONTROL_QOS, raw=True)
         if config.swing_recalibration:
             self.create_subscription(GaitState, contract.GAIT_STATE, self._on_gait_state, CONTROL_QOS)
@@ -77,17 +79,21 @@ class HardwareBridgeNode(Node):
         """A /motor_command's CDR bytes handed over by a controller in this process as it sends
         them (a1_bringup.control_chain): offered to the link at once, not after the executor's next
         wait. The copy that then comes over the wire is dropped (_on_command)."""
-        self._offer(raw)
-        self._taken = raw
+        command, stamp_ns = wire.decode_motor_command(raw)
+        self._taken, self._taken_stamp_ns = raw, stamp_ns
+        self._offer(command, stamp_ns)
 
     def _on_command(self, raw: bytes) -> None:
         """A /motor_command as its CDR bytes (a1_interface.wire: this runs 500 times a second)."""
         if raw == self._taken:  # the wire copy of the command take_command offered
             return
-        self._offer(raw)
+        command, stamp_ns = wire.decode_motor_command(raw)
+        if stamp_ns < self._taken_stamp_ns:  # the late wire copy of an earlier handed-over command:
+            return  # never over a newer one
+        self._offer(command, stamp_ns)
 
-    def _offer(self, raw: bytes) -> None:
-        result = self.bridge.offer_command(*wire.decode_motor_command(raw))
+    def _offer(self, command: JointCommand, stamp_ns: int) -> None:
+        result = self.bridge.offer_command(command, stamp_ns)
         if result == "rejected":
             self.get_logger().warning(f"rejected /motor_command: {self.bridge.logic.watchdog.last_error}",
                                       throttle_duration_sec=1.0)

@@ -14,7 +14,8 @@ start pose's sensors nothing is stepped or published until ``~/pause`` false (sc
 its report unpauses once it has a publisher on every topic it records, so it sees t = 0).
 QoS of the 500 Hz topics: RELIABLE, KEEP_LAST 1, VOLATILE (see docs/architecture.md).
 /diagnostics (1 Hz) counts what the robot sees of its controller: ``uncommanded_steps``, steps
-applied with no command accepted since the step before (a missed 2 ms deadline); ``latency_*_ms``,
+applied with no command accepted since the step before, or (realtime) with one sent after the
+step's deadline (a missed 2 ms deadline); ``latency_*_ms``,
 wall time from publishing a step's sensors to receiving the first command stamped for it, over the
 last second, answers within 0.1 s only; ``lowest_base_height_m`` since the last report;
 ``last_command_received_s``, the sim time the command in force was accepted at (its watchdog's
@@ -175,7 +176,7 @@ class SimBridgeNode(Node):
         # take what was published before stepping (see poll)
         self._drained_for: float | None = None
         self._command_late = False  # realtime: the newest command was sent after the deadline it was for
-        self._pending_raw: bytes | None = None  # the newest accepted command's bytes (see take_command)
+        self._taken_raw: bytes | None = None  # the last command handed over in-process (take_command)
         self.get_logger().info(
             f"A1 sim ready: world={self.sim.config.world} clock_mode={self.clock_mode} "
             f"dt={self.sim.config.time_step}s command_timeout={self.watchdog.timeout}s "
@@ -187,15 +188,19 @@ class SimBridgeNode(Node):
     def take_command(self, raw: bytes) -> None:
         """A /motor_command's CDR bytes handed over by a controller in this process as it sends
         them (a1_bringup.control_chain): taken at once, not after the executor's next wait. The
-        copy that then comes over the wire is dropped (_on_command)."""
-        self._on_command(raw, {"source_timestamp": time.time_ns()})
+        copy that then comes over the wire is dropped (_on_command), whatever became of this one."""
+        self._taken_raw = raw
+        self._take(raw, time.time_ns())
 
     def _on_command(self, raw: bytes, info: dict) -> None:
-        """A /motor_command as its CDR bytes (see wire.py: this runs 500 times a second), and its
-        DDS message info (when it was published)."""
+        """A /motor_command off the wire as its CDR bytes (see wire.py: this runs 500 times a
+        second), and its DDS message info (the source timestamp: when it was sent)."""
+        if raw != self._taken_raw:
+            self._take(raw, info["source_timestamp"])
+
+    def _take(self, raw: bytes, sent_ns: int) -> None:
+        """One command, sent at ``sent_ns`` (system clock [ns]): rejected, stale or accepted."""
         with self._lock:
-            if raw == self._pending_raw:  # the command in force again (its wire copy after take_command)
-                return
             # Invalid commands are rejected (and counted) whatever their stamp.
             command, stamp_ns = wire.decode_motor_command(raw)
             valid = self.watchdog.check(command)
@@ -210,14 +215,15 @@ class SimBridgeNode(Node):
             if self.clock_mode == "lockstep":
                 stale = stamp_ns != now_ns  # stamped for another step: not for this one
             else:  # realtime: the latest command counts, unless its stamp is far from now (pre-reset)
-                stale = abs(stamp_ns - now_ns) * 1e-9 > self.watchdog.timeout
+                # or older than the one in force (never an older step's answer over a newer one's)
+                stale = abs(stamp_ns - now_ns) * 1e-9 > self.watchdog.timeout or stamp_ns < self._pending_stamp_ns
             if stale:
                 self._late_commands += 1
                 return
             self.watchdog.accept(valid, self.sim.time)
-            self._pending_stamp_ns, self._pending_raw = stamp_ns, raw
-            if published is not None:  # sent (DDS source time) after the step that was to apply it began?
-                self._command_late = info["source_timestamp"] > published[1]
+            self._pending_stamp_ns = stamp_ns
+            if published is not None:  # sent after the step that was to apply it was due?
+                self._command_late = sent_ns > published[1]
             self._lock.notify_all()
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
@@ -308,6 +314,7 @@ class SimBridgeNode(Node):
             elif self._reset_requested:
                 self._do_reset()  # publishes the new run's sensors; the new run's time starts after it
                 self._next_deadline = self._waiting_since = time.monotonic()
+                self._set_answer_deadline(self._next_deadline)
                 return 0.0
             elif self._paused:
                 self._next_deadline = self._waiting_since = now
@@ -325,9 +332,9 @@ class SimBridgeNode(Node):
                   and self._pending_stamp_ns != self.sim.steps * self.dt_ns):
                 # Due, and this step's command is not in, but in one thread with the controller it
                 # may be published and not yet taken: the controller's work after the command (the
-                # filter update, /odom) can run past the deadline. One wait with no timeout first
-                # (return 0), so the step applies that command instead of the previous one; one sent
-                # after the deadline still counts as a missed deadline (_on_command, _advance).
+                # filter update, /odom) can run past the deadline. One wait that does not block
+                # first (return 0), so the step applies that command instead of the previous one;
+                # one sent after the deadline still counts as a missed deadline (_take, _advance).
                 self._drained_for = self._next_deadline
                 return 0.0
             else:
@@ -342,7 +349,18 @@ class SimBridgeNode(Node):
             self._overruns += 1
             if after - self._next_deadline > 0.1:  # far behind (e.g. suspended): do not try to catch up
                 self._next_deadline = after
+        with self._lock:
+            self._set_answer_deadline(after)
         return 0.0 if self.clock_mode == "lockstep" else max(0.0, self._next_deadline - after)
+
+    def _set_answer_deadline(self, now: float) -> None:
+        """Realtime (lock held): the deadline of the step that applies the answer to the sensors just
+        published, ``now`` being monotonic time, kept on the system clock of DDS source timestamps
+        [ns]. Set once poll has settled it (a catch-up or a reset moves it); until then none."""
+        stamp_ns = self.sim.steps * self.dt_ns
+        published = self._published_at.get(stamp_ns)
+        if published is not None and self.clock_mode == "realtime":
+            self._published_at[stamp_ns] = (published[0], time.time_ns() + round((self._next_deadline - now) * 1e9))
 
     def _lockstep_ready(self) -> bool:
         """Lockstep wait condition (lock held): this step's command arrived, or stop/reset."""
@@ -357,7 +375,7 @@ class SimBridgeNode(Node):
         self.watchdog.clear_command()
         self._applied_damping = self._commanded_damping = False
         self._pending_stamp_ns = self._applied_stamp_ns = -1
-        self._pending_raw = None
+        self._taken_raw = None
         self._published_at.clear()
         self._lowest_base_height = float("inf")  # a fall before the reset is not this run's
         if self.recorder is not None:
@@ -379,12 +397,8 @@ class SimBridgeNode(Node):
         self.pub_contacts.publish(contacts)
         # Joint states last: in lockstep a controller may take it as "this step's sensors are out".
         with self._lock:  # before publishing: a fast answer must find its step
-            now = time.monotonic()
-            # realtime: the deadline of the step that is to apply the answer, on the system clock of
-            # DDS source timestamps [ns] (lockstep waits for the answer: no deadline)
-            deadline_ns = (time.time_ns() + round((self._next_deadline + self._period - now) * 1e9)
-                           if self.clock_mode == "realtime" and self._next_deadline is not None else math.inf)
-            self._published_at[stamp_ns] = (now, deadline_ns)
+            # (the answer's deadline: none yet; realtime poll sets it, lockstep waits for the answer)
+            self._published_at[stamp_ns] = (time.monotonic(), math.inf)
             while len(self._published_at) > 50:  # 0.1 s: an answer later than that is no answer
                 self._published_at.popitem(last=False)
         self.pub_joints.publish(joints)

@@ -42,19 +42,25 @@ def _serve(conn: Connection) -> None:
 
 
 def _below_parent_priority() -> None:
-    """At SCHED_FIFO p (inherited), drop to p - 1: the solve yields to every thread of the 2 ms path.
-    Otherwise SCHED_BATCH (same nice): a request written to the pipe wakes the solver, and a plain
-    SCHED_OTHER solver then often took the CPU of the step that woke it (submit took 0.66 ms median
-    in the realtime graph, 1.6 ms at worst, the step's commands late); a batch task never preempts
-    on wake-up and runs on the idle core or once the step sleeps (submit 0.11-0.13 ms median)."""
-    if os.sched_getscheduler(0) == os.SCHED_FIFO:
-        priority = os.sched_getparam(0).sched_priority
-        if priority > 1:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority - 1))
-        else:
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    else:
-        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+    """At a realtime priority p (SCHED_FIFO or SCHED_RR, inherited), drop to p - 1: the solve yields
+    to every thread of the 2 ms path. At SCHED_OTHER, SCHED_BATCH (same nice): a request written to
+    the pipe wakes the solver, and a SCHED_OTHER solver then often took the CPU of the step that woke
+    it (submit took 0.66 ms median in the realtime graph, 1.6 ms at worst, the step's commands late);
+    a batch task never preempts on wake-up and runs on the idle core or once the step sleeps (submit
+    0.08-0.13 ms median). Any other policy (SCHED_IDLE, SCHED_BATCH) is kept, and a change the
+    system refuses leaves the inherited one: the solver still runs, only less politely."""
+    policy = os.sched_getscheduler(0)
+    try:
+        if policy in (os.SCHED_FIFO, os.SCHED_RR):
+            priority = os.sched_getparam(0).sched_priority
+            if priority > 1:
+                os.sched_setscheduler(0, policy, os.sched_param(priority - 1))
+            else:
+                os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        elif policy == os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+    except OSError as exc:
+        print(f"mpc_worker: kept the inherited scheduling policy {policy} ({exc})", file=sys.stderr, flush=True)
 
 
 class MpcWorkerProcess:
