@@ -59,7 +59,7 @@ def analyse(events: list[tuple[str, float, float]], offset: float, window: float
         if start > end - window:
             durations[part_of(label)].append(stop - start)
     receipt = "SimBridgeNode.take_command" if "SimBridgeNode.take_command" in durations else "cb:/motor_command"
-    lateness, late = [], []
+    late = []
     started_late: dict[int, float] = {}  # step index: its start minus its deadline [s]
     for k in range(1, len(steps)):
         i, step = steps[k]
@@ -68,7 +68,6 @@ def analyse(events: list[tuple[str, float, float]], offset: float, window: float
         if deadline == "None":
             continue
         deadline_pc = float(deadline) - offset  # this step's deadline on the perf_counter clock
-        lateness.append(step[1] - deadline_pc)
         started_late[k] = step[1] - deadline_pc
         taken = [e for e in events[previous_index:i] if e[0] == receipt]
         if taken and taken[-1][1] > deadline_pc:
@@ -82,7 +81,7 @@ def analyse(events: list[tuple[str, float, float]], offset: float, window: float
                        "cpu_fraction": float(v.sum()) / 1e3 / window}
         print(f"{part:<36} {len(v):>7} {np.median(v):>10.3f} {np.percentile(v, 99):>8.3f} {v.max():>8.3f} "
               f"{v.sum() / window:>9.1f}")
-    wake = np.array(lateness) * 1e3
+    wake = np.array(list(started_late.values())) * 1e3
     print(f"\nsim step start minus its deadline: median {np.median(wake):.3f} ms, "
           f"p99 {np.percentile(wake, 99):.3f} ms, max {wake.max():.3f} ms")
     # A late step makes the next ones start late too (the sim catches up with the wall clock): the

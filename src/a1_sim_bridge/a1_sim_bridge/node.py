@@ -349,17 +349,21 @@ class SimBridgeNode(Node):
             self._overruns += 1
             if after - self._next_deadline > 0.1:  # far behind (e.g. suspended): do not try to catch up
                 self._next_deadline = after
+        if self.clock_mode == "lockstep":
+            return 0.0
         with self._lock:
             self._set_answer_deadline(after)
-        return 0.0 if self.clock_mode == "lockstep" else max(0.0, self._next_deadline - after)
+        return max(0.0, self._next_deadline - after)
 
     def _set_answer_deadline(self, now: float) -> None:
         """Realtime (lock held): the deadline of the step that applies the answer to the sensors just
         published, ``now`` being monotonic time, kept on the system clock of DDS source timestamps
         [ns]. Set once poll has settled it (a catch-up or a reset moves it); until then none."""
+        if self.clock_mode != "realtime":  # (a reset in lockstep: no deadline)
+            return
         stamp_ns = self.sim.steps * self.dt_ns
         published = self._published_at.get(stamp_ns)
-        if published is not None and self.clock_mode == "realtime":
+        if published is not None:
             self._published_at[stamp_ns] = (published[0], time.time_ns() + round((self._next_deadline - now) * 1e9))
 
     def _lockstep_ready(self) -> bool:
