@@ -10,6 +10,7 @@ import re
 import numpy as np
 import pytest
 from a1_common.config import ConfigError
+from convex_mpc_node.controller import load_controller_config
 from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import load_hand_tuned_gaits
 from gait_policy_node.env import GaitEnv, make_profile, step_reward
@@ -225,10 +226,28 @@ def test_shipped_training_config_is_the_paper_default():
     ("workers.backend=mpi", r"workers.backend must be one of"),
     ("trainer.iterations=many", r"trainer.iterations must be a number"),
     ("trainer", r"must look like section.key=value"),
+    ("env.controller={mpc_friction: 0.2}", r"env.controller: .*unknown controller parameter 'mpc_friction'"),
+    ("env.controller={mpc_friction_coefficient: 7}", r"env.controller: .*friction_coefficient must be in"),
 ])
 def test_bad_training_config_names_the_key(override, message):
     with pytest.raises(ConfigError, match=message):
         load_train_config(overrides=[override])
+
+
+def test_env_controller_overrides_reach_the_episodes_controller():
+    """Training in the reference's conditions (its MPC assumes friction 0.2) must not need a copy of
+    config/convex_mpc.yaml: the run's config says it, and the rollout workers rebuild it from that."""
+    config = load_train_config(overrides=["env.controller={mpc_friction_coefficient: 0.2, mpc_mass: 13.0}"])
+    assert train_config_from_mapping(config.to_dict()) == config  # what a spawned worker gets
+    e = GaitEnv(config.env, config.reward)
+    try:
+        assert (e.controller_config.mpc.friction_coefficient, e.controller_config.mpc.mass) == (0.2, 13.0)
+        # everything else is the controller's parameter file
+        assert e.controller_config.body_height == load_controller_config().body_height
+    finally:
+        e.close()
+    assert TrainConfig().env.controller_config().mpc.friction_coefficient == \
+        load_controller_config().mpc.friction_coefficient
 
 
 def test_malformed_yaml_is_a_config_error(tmp_path):

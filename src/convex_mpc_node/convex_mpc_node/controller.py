@@ -128,9 +128,11 @@ def controller_config_from_parameters(params: dict, source: str = "parameters") 
         raise ConfigError(f"{source}: {exc}") from None
 
 
-def load_controller_config(path=None, ignore: frozenset[str] = frozenset(), overlays: tuple = ()) -> ControllerConfig:
+def load_controller_config(path=None, ignore: frozenset[str] = frozenset(), overlays: tuple = (),
+                           overrides: dict | None = None) -> ControllerConfig:
     """ControllerConfig from the node's parameter file (default ``config/convex_mpc.yaml``), then
-    each of ``overlays`` over it (as a second ``--params-file`` would: e.g. the realtime overlay).
+    each of ``overlays`` over it (as a second ``--params-file`` would: e.g. the realtime overlay),
+    then ``overrides``, parameters by name (a training config's ``env.controller``).
 
     Keys in ``ignore`` belong to the node, not the controller core (default: the supervisor's and
     the node's own, which live in the same file).
@@ -139,9 +141,10 @@ def load_controller_config(path=None, ignore: frozenset[str] = frozenset(), over
     params = {}
     for each in paths:
         params.update(load_node_parameters(each, "convex_mpc"))
+    params.update(overrides or {})
     skip = ignore or NODE_ONLY_PARAMETERS
-    return controller_config_from_parameters({k: v for k, v in params.items() if k not in skip},
-                                             " + ".join(str(p) for p in paths))
+    source = " + ".join([str(p) for p in paths] + (["overrides"] if overrides else []))
+    return controller_config_from_parameters({k: v for k, v in params.items() if k not in skip}, source)
 
 
 # Keys of config/convex_mpc.yaml that configure the supervisor and the node, not the controller core.

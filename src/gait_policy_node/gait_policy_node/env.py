@@ -18,7 +18,7 @@ import numpy as np
 from a1_common.command import VelocityCommand
 from a1_common.kinematics import heading_frame, quat_to_matrix
 from a1_sim_bridge.sim import A1Sim, SimConfig
-from convex_mpc_node.controller import ControllerConfig, load_controller_config
+from convex_mpc_node.controller import ControllerConfig
 from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import GaitParams, load_hand_tuned_gaits
 from state_estimator_node.estimator import EstimatorConfig, load_estimator_config
@@ -100,7 +100,7 @@ class GaitEnv:
                  estimator_config: EstimatorConfig | None = None) -> None:
         self.config = (env or EnvConfig()).validated()
         self.reward_config = (reward or RewardConfig()).validated()
-        self.controller_config = controller_config or load_controller_config()
+        self.controller_config = controller_config or self.config.controller_config()
         self.estimator_config = estimator_config or load_estimator_config()
         self.sim = A1Sim(SimConfig(world=self.config.world, ground_friction=self.config.ground_friction))
         self._placeholder_gait = load_hand_tuned_gaits()["slow_trot"]

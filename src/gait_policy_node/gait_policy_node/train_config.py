@@ -15,6 +15,7 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import yaml
 from a1_common.config import (
@@ -27,6 +28,9 @@ from a1_common.config import (
     require_range,
 )
 from a1_sim_bridge.worlds import WORLD_NAMES  # names only: no simulator imported
+
+if TYPE_CHECKING:
+    from convex_mpc_node.controller import ControllerConfig
 
 PROFILE_KINDS = ("ramp", "constant", "steps", "random")
 # Observation name -> size: basic [v_des_x, v_x, v_y, v_z]; extended adds roll, pitch, gyro, 12 joint
@@ -98,6 +102,9 @@ class EnvConfig:
     world: str = "flat"
     ground_friction: float = 0.8
     profile: ProfileConfig = field(default_factory=ProfileConfig)
+    # Controller parameters by name over config/convex_mpc.yaml, for training in other conditions
+    # than the deployed controller's (e.g. the reference's {mpc_friction_coefficient: 0.2}).
+    controller: dict = field(default_factory=dict)
 
     def validated(self) -> EnvConfig:
         require_integer("env.episode_steps", self.episode_steps, 1, 100_000)
@@ -106,7 +113,18 @@ class EnvConfig:
         _choice("env.world", self.world, WORLD_NAMES)
         require_range("env.ground_friction", self.ground_friction, 0.0, 5.0, low_open=True)
         self.profile.validated()
+        if self.controller:
+            self.controller_config()  # a bad name or value fails here, before any rollout
         return self
+
+    def controller_config(self) -> ControllerConfig:
+        """The controller the episodes run: config/convex_mpc.yaml with ``controller`` over it."""
+        from convex_mpc_node.controller import load_controller_config  # local: 0.3 s of imports
+
+        try:
+            return load_controller_config(overrides=self.controller)
+        except ConfigError as exc:
+            raise ConfigError(f"env.controller: {exc}") from None
 
 
 @dataclass(frozen=True)
