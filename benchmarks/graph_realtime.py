@@ -32,7 +32,9 @@ Scheduling experiments, without editing code (docs/architecture.md, "Realtime on
   one) puts a process at SCHED_FIFO right after it starts, before it creates its DDS threads, so all
   its threads inherit the priority;
 - ``--dds-transports UDPv4`` sets Fast DDS's FASTDDS_BUILTIN_TRANSPORTS for every process (the
-  default uses shared memory between processes on one machine).
+  default uses shared memory between processes on one machine). rmw_fastrtps ignores it with
+  ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (scripts/env.sh's default), so the option refuses to run
+  there: source env.sh with ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET to use it.
 
 Usage: source scripts/env.sh && python benchmarks/graph_realtime.py [--seconds 60] [--form both] [--joiners 10]
 """
@@ -53,6 +55,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
+from a1_bringup.graph import CHAIN_PRIORITY  # noqa: E402
 from graph_helpers import Graph, add_scheduling_options, apply_fifo, cpu_seconds, scheduling_from_args  # noqa: E402
 
 FORMS = ("composed", "separate")
@@ -83,6 +86,7 @@ def measure(form: str, args: argparse.Namespace, fifo: dict[str, int]) -> dict:
 
     graph = Graph(Path(tempfile.mkdtemp(prefix=f"graph_realtime_{form}_")))
     policy = (f"policy:={args.policy}",)
+    graph.chain_priority = args.chain_priority
     if args.bridge == "sim":
         graph.start_stack("realtime", 0.5, *args.controller_param, real_time_factor=args.real_time_factor,
                           policy_params=policy, composed_chain=form == "composed")
@@ -106,12 +110,13 @@ def measure(form: str, args: argparse.Namespace, fifo: dict[str, int]) -> dict:
             elif status.name == "virtual_a1":
                 robot.update(values)
             elif status.name == "a1_hw_bridge" and "sends" in values:  # as the sim bridge names them
-                values = {**values, "steps": values["sends"], "uncommanded_steps": values["uncommanded_sends"],
+                values = {**values, "steps": values["sends"], "deadline_periods": values["sends"],
+                          "uncommanded_steps": values["uncommanded_sends"],
                           "lowest_base_height_m": robot.get("lowest_base_height_m", "n/a")}
                 status.name = "a1_sim_bridge"
             if status.name == "a1_sim_bridge":
                 if reports:  # one line a second: where a run goes wrong, and when
-                    steps = int(values["steps"]) - int(reports[-1]["steps"])
+                    steps = int(values["deadline_periods"]) - int(reports[-1]["deadline_periods"])
                     missed = int(values["uncommanded_steps"]) - int(reports[-1]["uncommanded_steps"])
                     damped = int(values["damping_fallbacks"]) - int(reports[-1]["damping_fallbacks"])
                     print(f"{form} t={time.monotonic() - started:5.1f} s  missed {100 * missed / max(steps, 1):5.1f} %"
@@ -170,6 +175,7 @@ def measure(form: str, args: argparse.Namespace, fifo: dict[str, int]) -> dict:
     a, b = window_reports[0], window_reports[-1]
     window = float(len(window_reports) - 1)  # the bridge reports once a second
     steps = int(b["steps"]) - int(a["steps"])
+    periods = int(b["deadline_periods"]) - int(a["deadline_periods"])  # steps, and any the bridge skipped
     medians = [float(r["latency_median_ms"]) * 1e-3 for r in window_reports[1:] if r["latency_median_ms"] != "n/a"]
     p99s = [float(r["latency_p99_ms"]) * 1e-3 for r in window_reports[1:] if r["latency_p99_ms"] != "n/a"]
     heights = [float(r["lowest_base_height_m"]) for r in window_reports
@@ -177,7 +183,7 @@ def measure(form: str, args: argparse.Namespace, fifo: dict[str, int]) -> dict:
     return {
         "form": form, "window_s": window, "bridge_step_rate_hz": steps / window,
         "control_rate_hz": (int(b["commands_accepted"]) - int(a["commands_accepted"])) / window,
-        "missed_deadline_fraction": (int(b["uncommanded_steps"]) - int(a["uncommanded_steps"])) / max(steps, 1),
+        "missed_deadline_fraction": (int(b["uncommanded_steps"]) - int(a["uncommanded_steps"])) / max(periods, 1),
         "longest_command_gap_s": max(float(r["longest_command_gap_ms"]) for r in window_reports[1:]) * 1e-3,
         "sensor_to_command_latency_median_s": float(np.median(medians)) if medians else None,
         "sensor_to_command_latency_p99_s": max(p99s) if p99s else None,
@@ -241,6 +247,7 @@ def main() -> None:
         "forms": results, "bridge": args.bridge, "policy": args.policy, "top_speed_mps": args.top_speed,
         "acceleration_mps2": args.acceleration,
         "fifo_priorities": fifo, "dds_transports": args.dds_transports or "fastdds-default",
+        "composed_chain_fifo_priority": CHAIN_PRIORITY if args.chain_priority is None else args.chain_priority,
         "real_time_factor": args.real_time_factor,
     }))
 

@@ -8,7 +8,8 @@ listens to /diagnostics only, reports every ``--interval`` seconds of wall time,
 controller's first walking second (start-up, the robot sinking into damping before the controller
 runs and standing up, is not part of the run):
 - missed deadlines: the sim bridge's steps applied with no new /motor_command since the step
-  before (``uncommanded_steps``), as a share of its steps in the interval;
+  before, or with one sent after the step's deadline, and the periods it skipped after falling
+  over 0.1 s behind (``uncommanded_steps``), as a share of its periods in the interval;
 - resident memory (VmRSS) of every node process with its worker processes, to show growth (from
   the first report on: the nodes are still importing and warming up before it);
 - the lowest base height (ground truth) in the interval: under 0.18 m is a fall.
@@ -36,6 +37,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
+from a1_bringup.graph import CHAIN_PRIORITY  # noqa: E402
 from graph_helpers import Graph, add_scheduling_options, apply_fifo, rss_mib, scheduling_from_args  # noqa: E402
 
 SPEEDS = (0.5, 1.0, 1.5, 1.0, 0.5, 0.0)  # [m/s]
@@ -71,6 +73,7 @@ def main() -> None:
     from rclpy.node import Node
 
     graph = Graph(Path(tempfile.mkdtemp(prefix="soak_")))
+    graph.chain_priority = args.chain_priority
     graph.start_stack(args.clock, 0.5, *args.controller_param, real_time_factor=args.real_time_factor,
                       composed_chain=args.form == "composed")
     apply_fifo(graph, fifo)
@@ -100,7 +103,8 @@ def main() -> None:
         while time.monotonic() < settle:
             rclpy.spin_once(node, timeout_sec=0.1)
         start = time.monotonic()
-        last = {k: int(diag["a1_sim_bridge"][k]) for k in ("steps", "uncommanded_steps", "damping_fallbacks")}
+        last = {k: int(diag["a1_sim_bridge"][k])
+                for k in ("steps", "deadline_periods", "uncommanded_steps", "damping_fallbacks")}
         lowest, was_down = float("inf"), False
         next_report, last_cmd = start + args.interval, 0.0
         print(f"{'t [s]':>6} {'speed':>6} {'steps':>7} {'missed %':>9} {'damped':>7} {'lowest z [m]':>13}  "
@@ -120,6 +124,7 @@ def main() -> None:
             if now >= next_report:
                 bridge = diag["a1_sim_bridge"]
                 steps = int(bridge["steps"]) - last["steps"]
+                periods = int(bridge["deadline_periods"]) - last["deadline_periods"]  # steps and skipped ones
                 missed = int(bridge["uncommanded_steps"]) - last["uncommanded_steps"]
                 damped = int(bridge["damping_fallbacks"]) - last["damping_fallbacks"]  # the bridge's 50 ms watchdog
                 last = {k: int(bridge[k]) for k in last}
@@ -129,7 +134,8 @@ def main() -> None:
                 was_down = down
                 lowest_overall = min(lowest_overall, lowest)
                 row = {"t_s": round(now - start, 1), "speed_mps": speed, "sim_steps": steps,
-                       "missed_deadline_fraction": missed / max(steps, 1), "watchdog_dampings": damped,
+                       "deadline_periods": periods, "missed_deadline_fraction": missed / max(periods, 1),
+                       "watchdog_dampings": damped,
                        "lowest_base_height_m": lowest,
                        "rss_mib": rss}
                 rows.append(row)
@@ -147,8 +153,8 @@ def main() -> None:
     rss_end = rows[-1]["rss_mib"] if rows else {}
     growth = {k: (rss_end.get(k) - v) if v is not None and rss_end.get(k) is not None else None
               for k, v in rss_start.items()}
-    total_steps = sum(r["sim_steps"] for r in rows)
-    missed_total = sum(r["missed_deadline_fraction"] * r["sim_steps"] for r in rows) / max(total_steps, 1)
+    total_periods = sum(r["deadline_periods"] for r in rows)
+    missed_total = sum(r["missed_deadline_fraction"] * r["deadline_periods"] for r in rows) / max(total_periods, 1)
     print(f"\nmissed deadlines overall: {100 * missed_total:.1f} %   falls: {falls}   "
           f"lowest base height: {lowest_overall:.3f} m   all nodes alive: {all(alive.values())}")
     print("RSS growth [MiB]: " + " ".join(f"{k}={v:+.1f}" if v is not None else f"{k}=n/a"
@@ -162,6 +168,8 @@ def main() -> None:
         "rss_start_mib": rss_start, "rss_end_mib": rss_end, "rss_growth_mib": growth,
         "all_nodes_alive": all(alive.values()),
         "fifo_priorities": fifo, "dds_transports": args.dds_transports or "fastdds-default",
+        "composed_chain_fifo_priority": 0 if args.clock == "lockstep" or args.form != "composed" else (
+            CHAIN_PRIORITY if args.chain_priority is None else args.chain_priority),
         "real_time_factor": args.real_time_factor, "fall_records": [str(p) for p in records],
     }))
     if not all(alive.values()):

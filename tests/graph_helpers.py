@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from a1_bringup.graph import composed, describe, namespace_remaps
+from a1_bringup.graph import CHAIN_PRIORITY, composed, describe, namespace_remaps
 from a1_common.config import load_node_parameters
 from a1_common.robot import a1
 from rclpy.executors import Executor
@@ -71,6 +71,7 @@ class Graph:
         self.faults = faults or {}
         self.sim_time = "true"
         self.realtime = False
+        self.chain_priority: int | None = None  # the composed chain's SCHED_FIFO priority; None: the description's
         self.publishers = {topic: publisher for topic, (publisher, _) in TOPICS.items()}
         unknown = set(self.faults) - set(TOPICS)
         assert not unknown, f"no fault relay for {unknown}; topics: {sorted(TOPICS)}"
@@ -149,6 +150,8 @@ class Graph:
                  "gait_policy": dict(p.split(":=", 1) for p in policy_params)}
         for node in nodes:
             node.params.update({k: str(v) for k, v in extra.get(node.name, {}).items()})
+            if node.priority and self.chain_priority is not None:
+                node.priority = self.chain_priority
         processes = composed(nodes) if composed_chain else nodes
         names = [p.name for p in processes]
         assert set(after) <= set(names), f"after: {sorted(set(after) - set(names))} not in {names}"
@@ -331,8 +334,12 @@ DDS_TRANSPORTS = ("DEFAULT", "UDPv4", "SHM", "LARGE_DATA")
 def add_scheduling_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fifo", action="append", default=[], metavar="NODE=PRIORITY",
                         help=f"run NODE ({', '.join(FIFO_TARGETS)}) at SCHED_FIFO PRIORITY 1-99 (repeatable)")
+    parser.add_argument("--chain-priority", type=int, default=None, metavar="N",
+                        help=f"SCHED_FIFO priority of the composed chain (default: bring-up's, {CHAIN_PRIORITY} in "
+                             "realtime; 0: normal scheduling)")
     parser.add_argument("--dds-transports", choices=DDS_TRANSPORTS,
-                        help="Fast DDS builtin transports of every process (default: shared memory + UDP)")
+                        help="Fast DDS builtin transports of every process (default: shared memory + UDP); "
+                             "needs ROS_AUTOMATIC_DISCOVERY_RANGE other than LOCALHOST")
     parser.add_argument("--real-time-factor", type=float, default=1.0,
                         help="sim seconds per wall second, (0, 1]: under 1 gives every node more wall time per step")
 
@@ -342,6 +349,8 @@ def scheduling_from_args(parser: argparse.ArgumentParser, args: argparse.Namespa
     message); sets ``--dds-transports`` in the environment, which every node started later inherits."""
     if not 0.0 < args.real_time_factor <= 1.0:
         parser.error(f"--real-time-factor must be in (0, 1], got {args.real_time_factor}")
+    if args.chain_priority is not None and not 0 <= args.chain_priority <= 99:
+        parser.error(f"--chain-priority must be in [0, 99], got {args.chain_priority}")
     fifo = {}
     for spec in args.fifo:
         name, _, value = spec.partition("=")
@@ -355,6 +364,12 @@ def scheduling_from_args(parser: argparse.ArgumentParser, args: argparse.Namespa
             parser.error(f"--fifo {spec!r}: PRIORITY must be an integer in [1, 99]")
         fifo[name] = priority
     if args.dds_transports:
+        # With LOCALHOST discovery (scripts/env.sh's default) rmw_fastrtps sets its own transports,
+        # shared memory included, and ignores this variable: the run would measure the default.
+        if os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "") == "LOCALHOST":
+            parser.error("--dds-transports has no effect with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (rmw_fastrtps "
+                         "then picks its transports itself); source scripts/env.sh with "
+                         "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET to use it")
         os.environ["FASTDDS_BUILTIN_TRANSPORTS"] = args.dds_transports
     return fifo
 

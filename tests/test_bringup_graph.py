@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import argparse
+import os
 import shlex
+import subprocess
+import sys
 
 import pytest
 from a1_bringup.control_chain import parse_settings
-from a1_bringup.graph import composed, describe, main, namespace_remaps, with_settings
-from graph_helpers import CONFIG, ROOT
+from a1_bringup.graph import CHAIN_PRIORITY, composed, describe, main, namespace_remaps, with_settings
+from graph_helpers import CONFIG, ROOT, add_scheduling_options, scheduling_from_args
 
 
 def _names(nodes) -> list[str]:
@@ -80,6 +84,70 @@ def test_composed_puts_the_500_hz_chain_in_one_process_and_keeps_each_nodes_para
     assert realtime[0].arguments(CONFIG)[:2] == ["--bridge", "sim"] and "--estimator" not in realtime[0].options
     assert realtime[0].param_files == ["a1_sim_bridge.yaml", "convex_mpc.yaml", "convex_mpc_realtime.yaml"]
     assert describe("realtime")[1].nodes == ("convex_mpc",)
+
+
+def test_the_realtime_chain_asks_for_fifo_and_nothing_else_does():
+    for bridge in ("sim", "virtual", "hardware"):
+        chain = composed(describe("realtime", bridge))[-2]
+        assert chain.name == "control_chain"
+        args = chain.arguments(CONFIG)
+        assert args[args.index("--realtime-priority") + 1] == str(CHAIN_PRIORITY) and 0 < CHAIN_PRIORITY < 100
+        assert args.index("--realtime-priority") < args.index("--ros-args")
+    for nodes in (composed(describe("lockstep")), composed(describe("lockstep", "virtual")), describe("realtime"),
+                  describe("realtime", "virtual")):
+        assert not any("--realtime-priority" in n.arguments(CONFIG) for n in nodes)  # the separate form too
+
+
+_PRIORITY_PROBE = """
+import os, sys, threading
+from a1_bringup.control_chain import use_realtime_priority
+seen, go = [], threading.Event()
+def fifo():
+    seen.append(os.sched_getscheduler(0) == os.SCHED_FIFO)
+earlier = threading.Thread(target=lambda: (go.wait(), fifo()))
+earlier.start()
+set_it = use_realtime_priority(int(sys.argv[1]))
+go.set()
+earlier.join()
+later = threading.Thread(target=fifo)
+later.start()
+later.join()
+print(set_it, os.sched_getscheduler(0) == os.SCHED_FIFO, *seen)
+"""
+
+
+def _probe(priority: int) -> tuple[list[str], str]:
+    done = subprocess.run([sys.executable, "-c", _PRIORITY_PROBE, str(priority)], capture_output=True, text=True,
+                          timeout=60, check=True)
+    return done.stdout.split(), done.stderr
+
+
+def test_realtime_priority_is_fifo_for_every_thread_or_a_message_and_normal_scheduling():
+    """The main thread, one started before (as importing rclpy does) and one started after."""
+    assert _probe(0) == (["False", "False", "False", "False"], "")
+    out, err = _probe(5)
+    if out[0] == "True":  # permitted here (root, CAP_SYS_NICE or an rtprio limit)
+        assert out == ["True", "True", "True", "True"] and err == ""
+    else:
+        assert out == ["False", "False", "False", "False"] and "not permitted" in err and "normal priority" in err
+
+
+def test_benchmark_scheduling_options_refuse_what_would_not_apply(monkeypatch, capsys):
+    parser = argparse.ArgumentParser()
+    add_scheduling_options(parser)
+    monkeypatch.delenv("FASTDDS_BUILTIN_TRANSPORTS", raising=False)
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # rmw_fastrtps's own transports then
+    with pytest.raises(SystemExit):
+        scheduling_from_args(parser, parser.parse_args(["--dds-transports", "UDPv4"]))
+    assert "no effect with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST" in capsys.readouterr().err
+    assert "FASTDDS_BUILTIN_TRANSPORTS" not in os.environ
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET")
+    assert scheduling_from_args(parser, parser.parse_args(["--dds-transports", "UDPv4", "--fifo", "probe=5"])) == \
+        {"probe": 5}
+    assert os.environ["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"
+    with pytest.raises(SystemExit):
+        scheduling_from_args(parser, parser.parse_args(["--fifo", "probe=100"]))
+    assert "PRIORITY must be an integer in [1, 99]" in capsys.readouterr().err
 
 
 def test_chain_settings_are_typed_per_node_and_bad_ones_name_the_item():

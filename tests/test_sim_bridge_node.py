@@ -389,6 +389,32 @@ def test_realtime_step_in_the_executor_thread_takes_a_command_sent_before_its_de
 
 
 @pytest.mark.ros
+def test_realtime_periods_skipped_after_a_stall_count_as_missed_deadlines(rclpy_context):
+    """Composed, a stall of the whole process stalls the simulation too: the steps it does not
+    catch up with (over 0.1 s behind) are deadlines the robot passed without a command."""
+    overrides = [Parameter("clock_mode", value="realtime")]
+    bridge = SimBridgeNode(own_thread=False, context=rclpy_context, parameter_overrides=overrides)
+    try:
+        bridge.poll()  # the start pose's sensors
+        bridge.take_command(serialize_message(motor_command_msg(JointCommand.hold(a1()), stamp_from_ns(0))))
+        bridge._next_deadline = time.monotonic()
+        bridge.poll()  # the first commanded step
+        periods, missed, steps = bridge.deadlines.periods, bridge.deadlines.uncommanded, bridge.sim.steps
+        assert steps == 1
+        bridge._next_deadline = time.monotonic() - 0.5  # the process was stopped for half a second
+        assert bridge.poll() == 0.0 and bridge.sim.steps == steps  # first: let the executor take a command
+        bridge.poll()
+        assert bridge.sim.steps == steps + 1  # one step, not 250 to catch up
+        skipped = bridge.deadlines.periods - periods - 1
+        assert 0.5 / bridge._period - 10 < skipped <= 0.5 / bridge._period
+        assert bridge.deadlines.uncommanded - missed == skipped + 1  # no command came for any of them
+        assert abs(bridge._next_deadline - time.monotonic()) < 0.05  # on schedule again from now
+    finally:
+        bridge.shutdown()
+        bridge.destroy_node()
+
+
+@pytest.mark.ros
 def test_a_command_handed_over_in_process_steps_lockstep_at_once_and_its_wire_copy_is_dropped(rclpy_context):
     """Composed (a1_bringup.control_chain), the controller hands its command to the bridge as it
     sends it: a lockstep step is due at once, with no wait for the executor, and the copy that

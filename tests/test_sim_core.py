@@ -144,6 +144,13 @@ def test_deadline_monitor_counts_missed_periods_and_the_longest_gap_per_window()
     assert monitor.uncommanded == 3  # totals are kept across windows
     monitor.count(6, late=True)  # a new command, but sent after the period's deadline: missed
     assert (monitor.uncommanded, monitor.window()["longest_command_gap_ms"]) == (4, "4")
+    monitor.window()
+    monitor.count(7)
+    monitor.count(7)
+    monitor.skipped(50)  # a realtime bridge 0.1 s behind skips what it cannot catch up with
+    monitor.count(8)
+    assert (monitor.periods, monitor.uncommanded) == (62, 55)
+    assert monitor.window()["longest_command_gap_ms"] == "104"  # the run of 51 missed periods, and one
     with pytest.raises(ConfigError, match="period"):
         DeadlineMonitor(period=0.0)
 

@@ -20,12 +20,19 @@ plain ``-p`` sets every node. ``--estimator`` adds the state_estimator node (a l
 controller does not embed it). a1_bringup.graph writes these command lines.
 Killing the process stops the bridge with the controller: the simulated robot is gone with it, and
 the real (or virtual) A1 damps its motors on its own once the commands stop, as with a dead controller.
+
+``--realtime-priority N`` (realtime bring-up: a1_bringup.graph's ``CHAIN_PRIORITY``) runs the
+process at SCHED_FIFO N, so a user's tool starting beside it (a new Python process takes most of a
+core for a second) does not delay its 2 ms steps; where that is not permitted it says so and runs at
+normal priority. Its threads, Fast DDS's included, inherit it; the MPC worker runs one lower.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
+import os
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -82,7 +89,12 @@ def main(args: list[str] | None = None) -> None:
                         help="also run the state_estimator node (for a controller without embedded_estimator)")
     parser.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE",
                         help="a parameter of one node of the chain (repeatable; after its parameter files)")
+    parser.add_argument("--realtime-priority", type=int, default=0, metavar="N",
+                        help="run at SCHED_FIFO N, 1-99 (0: normal scheduling; refused: a message, then normal)")
     options = parser.parse_args(remove_ros_args(argv)[1:])
+    if not 0 <= options.realtime_priority <= 99:
+        parser.error(f"--realtime-priority must be in [0, 99], got {options.realtime_priority}")
+    use_realtime_priority(options.realtime_priority)  # before rclpy starts its threads: they inherit it
     nodes = chain_nodes(options.bridge, options.estimator)
     try:
         overrides = parse_settings(options.set, [name for name, _ in nodes])
@@ -95,6 +107,24 @@ def main(args: list[str] | None = None) -> None:
         factories[0] = functools.partial(factories[0], own_thread=False)
     run_nodes("control_chain", factories, argv, poll=_poll_sim if options.bridge == "sim" else None,
               connect=_hand_commands_to_bridge)
+
+
+def use_realtime_priority(priority: int) -> bool:
+    """This process at SCHED_FIFO ``priority`` (0: leave it): the threads it has (importing rclpy
+    starts two) and, by inheritance, those rclpy and the MPC worker start later. True if set. A
+    refusal (no root, CAP_SYS_NICE or rtprio limit) is reported on stderr and the chain runs at
+    normal priority: slower to recover from a busy machine, not unsafe."""
+    if priority <= 0:
+        return False
+    try:
+        for tid in sorted(os.listdir("/proc/self/task"), key=lambda t: int(t) != os.getpid()):  # main first
+            with contextlib.suppress(ProcessLookupError):  # a thread that has ended since
+                os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError:
+        print(f"control_chain: SCHED_FIFO {priority} is not permitted here (needs root, CAP_SYS_NICE or an "
+              "rtprio limit); running at normal priority", file=sys.stderr, flush=True)
+        return False
+    return True
 
 
 def _poll_sim(nodes: list[Any]) -> float:

@@ -13,6 +13,8 @@ end-to-end tests and benchmarks) starts the same NodeSpecs. The rules:
 
 - composed: the 500 Hz chain (sim_bridge or hw_bridge, state_estimator, convex_mpc) as one
   process, a1_bringup's control_chain; virtual_a1 (it plays the robot) and gait_policy stay apart.
+  In realtime the chain's process runs at SCHED_FIFO ``CHAIN_PRIORITY`` (where permitted); the
+  separate form keeps every node at normal priority.
 
     python -m a1_bringup.graph --clock lockstep --config config --set gait_policy.policy=learned \
         [--composed] [--namespace /a1_2]
@@ -32,6 +34,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 CLOCKS = ("lockstep", "realtime")
+# SCHED_FIFO priority of the composed 500 Hz chain in realtime: above every normal process (a
+# user's tool starting beside it), below the kernel's threaded interrupts (50 on PREEMPT_RT is
+# theirs by default, so a robot computer with that kernel may want 49 or less).
+CHAIN_PRIORITY = 50
 BRIDGES = ("sim", "virtual", "hardware")
 NAMESPACE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
 
@@ -45,6 +51,7 @@ class NodeSpec:
     params: dict[str, str] = field(default_factory=dict)  # -p name:=value, after the files
     options: list[str] = field(default_factory=list)  # the executable's own, before --ros-args
     members: tuple[str, ...] = ()  # a composed process: the nodes in it (else just this one)
+    priority: int = 0  # SCHED_FIFO priority its process gets when composed (0: normal scheduling)
 
     @property
     def nodes(self) -> tuple[str, ...]:
@@ -73,19 +80,22 @@ def describe(clock: str, bridge: str = "sim", *, embedded_estimator: bool | None
     # Sim time in lockstep only: in realtime the nodes work on the sensors' stamps, and 500 Hz /clock
     # callbacks in every node would cost a good part of a core on a small computer.
     sim_time = {"use_sim_time": "true" if clock == "lockstep" else "false"}
+    priority = CHAIN_PRIORITY if clock == "realtime" else 0
     nodes = {
-        "sim": [NodeSpec("sim_bridge", "a1_sim_bridge", "sim_bridge", ["a1_sim_bridge.yaml"], {"clock_mode": clock})],
+        "sim": [NodeSpec("sim_bridge", "a1_sim_bridge", "sim_bridge", ["a1_sim_bridge.yaml"], {"clock_mode": clock},
+                         priority=priority)],
         "virtual": [NodeSpec("virtual_a1", "a1_hw_bridge", "virtual_a1", ["virtual_a1.yaml"], {"clock_mode": clock}),
                     NodeSpec("hw_bridge", "a1_hw_bridge", "hw_bridge", ["a1_hw_bridge.yaml"],
-                             {"robot_ip": "127.0.0.1", "clock_mode": clock})],
-        "hardware": [NodeSpec("hw_bridge", "a1_hw_bridge", "hw_bridge", ["a1_hw_bridge.yaml"])],
+                             {"robot_ip": "127.0.0.1", "clock_mode": clock}, priority=priority)],
+        "hardware": [NodeSpec("hw_bridge", "a1_hw_bridge", "hw_bridge", ["a1_hw_bridge.yaml"], priority=priority)],
     }[bridge]
     if not embedded:
         nodes.append(NodeSpec("state_estimator", "state_estimator_node", "state_estimator", ["state_estimator.yaml"],
                               dict(sim_time)))
     controller_files = ["convex_mpc.yaml", *(["convex_mpc_realtime.yaml"] if clock == "realtime" else [])]
     controller = {**sim_time, **({"embedded_estimator": "true"} if embedded and clock == "lockstep" else {})}
-    nodes.append(NodeSpec("convex_mpc", "convex_mpc_node", "convex_mpc", controller_files, controller))
+    nodes.append(NodeSpec("convex_mpc", "convex_mpc_node", "convex_mpc", controller_files, controller,
+                          priority=priority))
     nodes.append(NodeSpec("gait_policy", "gait_policy_node", "gait_policy", ["gait_policy.yaml"], dict(sim_time)))
     return nodes
 
@@ -113,9 +123,11 @@ def composed(nodes: list[NodeSpec]) -> list[NodeSpec]:
     options += ["--estimator"] * any(n.name == "state_estimator" for n in members)
     for member in members:
         options += [a for key, value in member.params.items() for a in ("--set", f"{member.name}.{key}={value}")]
+    priority = max(n.priority for n in members)
+    options += ["--realtime-priority", str(priority)] * (priority > 0)
     files = list(dict.fromkeys(f for n in members for f in n.param_files))
     chain = NodeSpec("control_chain", "a1_bringup", "control_chain", files, options=options,
-                     members=tuple(n.name for n in members))
+                     members=tuple(n.name for n in members), priority=priority)
     first = nodes.index(members[0])
     return [*nodes[:first], chain, *(n for n in nodes[first:] if n.name not in CHAIN)]
 

@@ -277,6 +277,15 @@ class DeadlineMonitor:
         self._run = 0 if fresh else self._run + 1
         self._longest_run = max(self._longest_run, self._run)
 
+    def skipped(self, periods: int) -> None:
+        """``periods`` the bridge did not run at all (a realtime sim bridge that fell over 0.1 s
+        behind starts again from now instead of catching up): each a missed deadline, continuing
+        the current run of them."""
+        self.periods += periods
+        self.uncommanded += periods
+        self._run += periods
+        self._longest_run = max(self._longest_run, self._run)
+
     def latency(self, seconds: float) -> None:
         """Wall time from publishing a period's sensors to receiving the command that answers them."""
         self._latencies.append(seconds)

@@ -345,13 +345,19 @@ class SimBridgeNode(Node):
         self._next_deadline += self._period
         after = time.monotonic()
         self._waiting_since = after
+        skipped = 0
         if self.clock_mode == "realtime" and after > self._next_deadline:
             self._overruns += 1
             if after - self._next_deadline > 0.1:  # far behind (e.g. suspended): do not try to catch up
+                if self.watchdog.accepted_since_reset:  # (before any command no step is counted either)
+                    skipped = int((after - self._next_deadline) / self._period)
                 self._next_deadline = after
         if self.clock_mode == "lockstep":
             return 0.0
         with self._lock:
+            # The periods skipped were deadlines the robot passed with no new command: in one
+            # process with the controller, a stall of both shows only here.
+            self.deadlines.skipped(skipped)
             self._set_answer_deadline(after)
         return max(0.0, self._next_deadline - after)
 
@@ -485,7 +491,7 @@ class SimBridgeNode(Node):
             "last_command_received_s": f"{wd.received_at:.3f}" if math.isfinite(wd.received_at) else "none",
             "late_commands": self._late_commands, "lockstep_timeouts": self._lockstep_timeouts,
             "realtime_overruns": self._overruns, "paused": self._paused,
-            "uncommanded_steps": self.deadlines.uncommanded, **window,
+            "uncommanded_steps": self.deadlines.uncommanded, "deadline_periods": self.deadlines.periods, **window,
             "lowest_base_height_m": f"{lowest:.3f}" if self.publish_ground_truth else "n/a",
             "base_height_m": f"{base_z:.3f}",
         }
