@@ -10,11 +10,13 @@ import re
 import numpy as np
 import pytest
 from a1_common.config import ConfigError
+from a1_sim_bridge.sim import SimConfig
 from convex_mpc_node.controller import load_controller_config
 from convex_mpc_node.energy import motor_power
 from convex_mpc_node.gait import load_hand_tuned_gaits
 from gait_policy_node.env import GaitEnv, make_profile, step_reward
 from gait_policy_node.es import Ars, CmaEs, restore
+from gait_policy_node.eval_policy import in_stack_conditions
 from gait_policy_node.gait_analysis import classify_gait, transition_speeds
 from gait_policy_node.learned_policy import NetworkPolicy, decode_action, load_policy, save_policy
 from gait_policy_node.policy import make_policy
@@ -248,6 +250,15 @@ def test_env_controller_overrides_reach_the_episodes_controller():
         e.close()
     assert TrainConfig().env.controller_config().mpc.friction_coefficient == \
         load_controller_config().mpc.friction_coefficient
+
+
+def test_eval_policy_runs_a_policy_trained_elsewhere_in_the_stacks_conditions():
+    trained = load_train_config(overrides=["env.ground_friction=0.25", "env.controller={mpc_friction_coefficient: 0.2}",
+                                           "env.profile.acceleration=0.5"])
+    stack = in_stack_conditions(trained)
+    assert (stack.env.ground_friction, stack.env.controller) == (SimConfig().ground_friction, {})
+    assert stack.env.controller_config() == load_controller_config()
+    assert stack.env.profile == trained.env.profile and stack.policy == trained.policy  # nothing else changes
 
 
 def test_malformed_yaml_is_a_config_error(tmp_path):

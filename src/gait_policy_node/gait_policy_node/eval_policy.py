@@ -2,13 +2,15 @@
 
     eval_policy POLICY [--profile ramp|constant|steps|random] [--speed V] [--target-speed V]
                 [--acceleration A] [--duration S] [--world flat|step|rough|soft|slope] [--seed N]
-                [--out DIR] [--format csv|npz]
+                [--stack-conditions] [--out DIR] [--format csv|npz]
 
 POLICY is ``learned`` (the trained policy this package ships), a policy file from train_es (.npz),
 ``scheduled`` (the hand-tuned gaits by speed) or a hand-tuned gait name (walk, slow_trot,
 rapid_trot, fly_trot). The run uses the policy file's training config (observation, reward,
 controller inputs) or, for hand-tuned gaits, config/train_es.yaml; the options above replace its
-profile and world. Writes per control step data (steps.csv or steps.npz), the gait diagram
+profile and world. ``--stack-conditions`` runs a policy trained in other conditions (e.g. the
+reference's friction) where the stack runs it: the sim bridge's ground friction and the deployed
+controller (config/convex_mpc.yaml alone). Writes per control step data (steps.csv or steps.npz), the gait diagram
 (gait_diagram.png) and summary.json into ``--out`` (default log/eval/<policy>-<time>/) and prints
 per speed band: tracking error, power, cost of
 transport, f, p_swing, offsets and the gait class, then the gait transitions.
@@ -27,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from a1_common.config import ConfigError
 from a1_common.files import new_timestamped_folder
+from a1_sim_bridge.sim import SimConfig
 from a1_sim_bridge.worlds import WORLD_NAMES
 from convex_mpc_node.gait import GaitParams
 
@@ -51,6 +54,13 @@ def resolve_policy(spec: str, config_path: str | None = None) -> tuple[Observati
     if config.env.observation != "basic":
         config = dataclasses.replace(config, env=dataclasses.replace(config.env, observation="basic"))
     return (lambda obs: hand_tuned(np.array([obs[0], 0.0]), obs[1:4])), config
+
+
+def in_stack_conditions(config: TrainConfig) -> TrainConfig:
+    """``config`` with the ground friction the sim bridge uses and no controller overrides: the
+    conditions of the node graph, whatever the policy was trained in."""
+    env = dataclasses.replace(config.env, ground_friction=SimConfig().ground_friction, controller={})
+    return train_config_from_mapping(dataclasses.replace(config, env=env).to_dict())
 
 
 def with_profile(config: TrainConfig, overrides: dict, world: str | None, duration: float | None) -> TrainConfig:
@@ -99,6 +109,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--world", choices=WORLD_NAMES)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--config", help="config for hand-tuned gaits (default config/train_es.yaml)")
+    parser.add_argument("--stack-conditions", action="store_true",
+                        help="the sim bridge's ground friction and the deployed controller (not the training ones)")
     parser.add_argument("--out", type=Path)
     parser.add_argument("--format", choices=("csv", "npz"), default="csv")
     return parser.parse_args(argv)
@@ -111,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         profile = {"kind": args.profile, "speed": args.speed, "target_speed": args.target_speed,
                    "acceleration": args.acceleration}
         config = with_profile(config, profile, args.world, args.duration)
+        config = in_stack_conditions(config) if args.stack_conditions else config
     except ConfigError as exc:
         print(f"eval_policy: {exc}", file=sys.stderr)
         return 2
@@ -118,7 +131,8 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or new_timestamped_folder(Path("log") / "eval", name)
     out.mkdir(parents=True, exist_ok=True)
     env = config.env
-    print(f"eval_policy: {args.policy} on {env.world} ground, {env.profile.kind} profile, "
+    print(f"eval_policy: {args.policy} on {env.world} ground (friction {env.ground_friction}"
+          f"{', controller ' + str(env.controller) if env.controller else ''}), {env.profile.kind} profile, "
           f"{env.episode_steps * POLICY_PERIOD:.1f} s", flush=True)
     stats, data = evaluate(policy, config, args.seed)
     rows = summarise_bands(data, config.reward.mass, config.reward.gravity)
