@@ -55,8 +55,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
-from a1_bringup.graph import CHAIN_PRIORITY  # noqa: E402
-from graph_helpers import Graph, add_scheduling_options, apply_fifo, cpu_seconds, scheduling_from_args  # noqa: E402
+from graph_helpers import (  # noqa: E402
+    Graph,
+    add_scheduling_options,
+    apply_fifo,
+    cpu_seconds,
+    fifo_priority,
+    scheduling_from_args,
+)
 
 FORMS = ("composed", "separate")
 JOINER = """
@@ -143,6 +149,8 @@ def measure(form: str, args: argparse.Namespace, fifo: dict[str, int]) -> dict:
         first = len(reports)
         start = time.monotonic()
         cpu_start = {name: cpu_seconds(proc.pid) for name, proc in graph.procs.items()}
+        chain = graph.procs.get("control_chain")
+        chain_priority = fifo_priority(chain.pid) if chain is not None else None
         # Joiners: each lives 2 s, started evenly over the window after the ramp's first 2 s.
         join_at = list(np.linspace(2.0, args.seconds - 3.0, args.joiners)) if args.joiners else []
         last_cmd = 0.0
@@ -191,6 +199,7 @@ def measure(form: str, args: argparse.Namespace, fifo: dict[str, int]) -> dict:
         "joiners": args.joiners,
         **{f"cpu_{name}_cores": share for name, share in cpu.items()},
         "fall_records": [str(p) for p in graph.fall_records()],
+        "control_chain_fifo_priority": chain_priority,  # as applied (0: normal scheduling)
     }
 
 
@@ -247,7 +256,6 @@ def main() -> None:
         "forms": results, "bridge": args.bridge, "policy": args.policy, "top_speed_mps": args.top_speed,
         "acceleration_mps2": args.acceleration,
         "fifo_priorities": fifo, "dds_transports": args.dds_transports or "fastdds-default",
-        "composed_chain_fifo_priority": CHAIN_PRIORITY if args.chain_priority is None else args.chain_priority,
         "real_time_factor": args.real_time_factor,
     }))
 

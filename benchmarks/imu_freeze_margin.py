@@ -32,7 +32,7 @@ import numpy as np
 from a1_common.config import config_dir
 from convex_mpc_node.controller import ControllerConfig, load_controller_config
 from gait_policy_node.env import GaitEnv
-from gait_policy_node.eval_policy import resolve_policy
+from gait_policy_node.eval_policy import in_stack_conditions, resolve_policy
 from gait_policy_node.rollout import POLICY_PERIOD
 
 from gait_policy_node import speed_profiles
@@ -52,8 +52,9 @@ def run(spec: str, speed: float, offset: int, freeze_steps: int,
         controller: ControllerConfig | None = None) -> tuple[float | None, float]:
     """(sim time of the fall [s] or None, lowest base height from the freeze on [m], sampled every
     policy step) for one freeze starting ``offset`` policy steps after the settle; ``controller``
-    None: config/convex_mpc.yaml's."""
+    None: config/convex_mpc.yaml's. The graph's conditions, whatever the policy was trained in."""
     policy, config = resolve_policy(spec)
+    config = in_stack_conditions(config)
     env = GaitEnv(config.env, config.reward, controller_config=controller)
     try:
         obs = env.reset(seed=0, profile=speed_profiles.ramp(speed, ACCELERATION))

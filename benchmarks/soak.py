@@ -37,8 +37,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
-from a1_bringup.graph import CHAIN_PRIORITY  # noqa: E402
-from graph_helpers import Graph, add_scheduling_options, apply_fifo, rss_mib, scheduling_from_args  # noqa: E402
+from graph_helpers import (  # noqa: E402
+    Graph,
+    add_scheduling_options,
+    apply_fifo,
+    fifo_priority,
+    rss_mib,
+    scheduling_from_args,
+)
 
 SPEEDS = (0.5, 1.0, 1.5, 1.0, 0.5, 0.0)  # [m/s]
 FELL_BELOW = 0.18  # [m]
@@ -103,6 +109,8 @@ def main() -> None:
         while time.monotonic() < settle:
             rclpy.spin_once(node, timeout_sec=0.1)
         start = time.monotonic()
+        chain = graph.procs.get("control_chain")
+        chain_priority = fifo_priority(chain.pid) if chain is not None else None
         last = {k: int(diag["a1_sim_bridge"][k])
                 for k in ("steps", "deadline_periods", "uncommanded_steps", "damping_fallbacks")}
         lowest, was_down = float("inf"), False
@@ -168,8 +176,7 @@ def main() -> None:
         "rss_start_mib": rss_start, "rss_end_mib": rss_end, "rss_growth_mib": growth,
         "all_nodes_alive": all(alive.values()),
         "fifo_priorities": fifo, "dds_transports": args.dds_transports or "fastdds-default",
-        "composed_chain_fifo_priority": 0 if args.clock == "lockstep" or args.form != "composed" else (
-            CHAIN_PRIORITY if args.chain_priority is None else args.chain_priority),
+        "control_chain_fifo_priority": chain_priority,  # as applied (0: normal scheduling; None: no chain)
         "real_time_factor": args.real_time_factor, "fall_records": [str(p) for p in records],
     }))
     if not all(alive.values()):

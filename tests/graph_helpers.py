@@ -344,6 +344,12 @@ def add_scheduling_options(parser: argparse.ArgumentParser) -> None:
                         help="sim seconds per wall second, (0, 1]: under 1 gives every node more wall time per step")
 
 
+def fifo_priority(pid: int) -> int:
+    """The SCHED_FIFO priority of process ``pid``'s main thread, 0 if it is not FIFO (what a
+    benchmark reports: the priority a process got, not the one asked for)."""
+    return os.sched_getparam(pid).sched_priority if os.sched_getscheduler(pid) == os.SCHED_FIFO else 0
+
+
 def scheduling_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, int]:
     """{node: FIFO priority} from ``--fifo NODE=PRIORITY`` (a bad one ends the run with a clear
     message); sets ``--dds-transports`` in the environment, which every node started later inherits."""
@@ -363,6 +369,11 @@ def scheduling_from_args(parser: argparse.ArgumentParser, args: argparse.Namespa
         if not 1 <= priority <= 99:
             parser.error(f"--fifo {spec!r}: PRIORITY must be an integer in [1, 99]")
         fifo[name] = priority
+    if "control_chain" in fifo:  # control_chain sets its own priority (--realtime-priority): one source
+        priority = fifo.pop("control_chain")
+        if args.chain_priority not in (None, priority):
+            parser.error(f"--fifo control_chain={priority} and --chain-priority {args.chain_priority} disagree")
+        args.chain_priority = priority
     if args.dds_transports:
         # With LOCALHOST discovery (scripts/env.sh's default) rmw_fastrtps sets its own transports,
         # shared memory included, and ignores this variable: the run would measure the default.

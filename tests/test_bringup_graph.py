@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 import pytest
-from a1_bringup.control_chain import parse_settings
+from a1_bringup.control_chain import parse_settings, use_realtime_priority
 from a1_bringup.graph import CHAIN_PRIORITY, composed, describe, main, namespace_remaps, with_settings
 from graph_helpers import CONFIG, ROOT, add_scheduling_options, scheduling_from_args
 
@@ -132,6 +132,24 @@ def test_realtime_priority_is_fifo_for_every_thread_or_a_message_and_normal_sche
         assert out == ["False", "False", "False", "False"] and "not permitted" in err and "normal priority" in err
 
 
+def test_a_refused_realtime_priority_is_said_and_the_chain_goes_on(monkeypatch, capsys):
+    def refuse(tid, policy, param):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    assert use_realtime_priority(50) is False
+    assert "SCHED_FIFO 50 is not permitted here" in capsys.readouterr().err
+    set_for = []
+
+    def gone(tid, policy, param):  # a thread that ended between the listing and the call
+        if tid != os.getpid():
+            raise ProcessLookupError(3, "No such process")
+        set_for.append(tid)
+
+    monkeypatch.setattr(os, "sched_setscheduler", gone)
+    assert use_realtime_priority(50) is True and set_for == [os.getpid()]
+
+
 def test_benchmark_scheduling_options_refuse_what_would_not_apply(monkeypatch, capsys):
     parser = argparse.ArgumentParser()
     add_scheduling_options(parser)
@@ -148,6 +166,11 @@ def test_benchmark_scheduling_options_refuse_what_would_not_apply(monkeypatch, c
     with pytest.raises(SystemExit):
         scheduling_from_args(parser, parser.parse_args(["--fifo", "probe=100"]))
     assert "PRIORITY must be an integer in [1, 99]" in capsys.readouterr().err
+    args = parser.parse_args(["--fifo", "control_chain=40"])  # control_chain sets its own: one source
+    assert scheduling_from_args(parser, args) == {} and args.chain_priority == 40
+    with pytest.raises(SystemExit):
+        scheduling_from_args(parser, parser.parse_args(["--fifo", "control_chain=40", "--chain-priority", "0"]))
+    assert "disagree" in capsys.readouterr().err
 
 
 def test_chain_settings_are_typed_per_node_and_bad_ones_name_the_item():

@@ -15,7 +15,7 @@ from a1_common.config import ConfigError
 from a1_common.robot import a1
 from a1_hw_bridge.bridge import BridgeConfig, BridgeLogic, HardwareBridge, Phase
 from a1_hw_bridge.contacts import FootContactCalibrator
-from a1_hw_bridge.link import RobotLink
+from a1_hw_bridge.link import Pacer, RobotLink
 from a1_hw_bridge.protocol import pack_low_cmd, pack_low_state, unpack_low_cmd, unpack_low_state
 from a1_hw_bridge.robot_io import (
     joint_command_from_low_cmd,
@@ -411,3 +411,16 @@ def test_a_dead_link_thread_damps_the_motors_and_reports():
         server.stop()
         thread.join(timeout=2)
         robot.close()
+
+
+def test_pacer_keeps_time_catches_up_a_little_and_reports_what_it_skips():
+    pacer = Pacer(0.002)
+    pacer.deadline = time.monotonic() + 1.0
+    assert pacer.advance() == 0 and pacer.overruns == 0  # ahead: the next deadline, nothing skipped
+    pacer.deadline = time.monotonic() - 0.05
+    assert pacer.advance() == 0 and pacer.overruns == 1  # 50 ms behind: catch up, send by send
+    due = pacer.deadline = time.monotonic() - 0.5  # a stalled process: start again from now
+    skipped = pacer.advance()
+    behind = time.monotonic() - due
+    assert 0.5 / 0.002 - 2 <= skipped <= behind / 0.002 and pacer.overruns == 2
+    assert pacer.remaining() <= 0.0 and abs(pacer.remaining()) < 0.05

@@ -32,6 +32,7 @@ from gait_policy_node.train_config import (
     load_train_config,
     train_config_from_mapping,
 )
+from gait_policy_node.train_es import main as train_es_main
 
 from gait_policy_node import speed_profiles
 
@@ -228,12 +229,23 @@ def test_shipped_training_config_is_the_paper_default():
     ("workers.backend=mpi", r"workers.backend must be one of"),
     ("trainer.iterations=many", r"trainer.iterations must be a number"),
     ("trainer", r"must look like section.key=value"),
-    ("env.controller={mpc_friction: 0.2}", r"env.controller: .*unknown controller parameter 'mpc_friction'"),
-    ("env.controller={mpc_friction_coefficient: 7}", r"env.controller: .*friction_coefficient must be in"),
 ])
 def test_bad_training_config_names_the_key(override, message):
     with pytest.raises(ConfigError, match=message):
         load_train_config(overrides=[override])
+
+
+@pytest.mark.parametrize(("controller", "message"), [
+    ("{mpc_friction: 0.2}", r"env.controller: .*unknown controller parameter 'mpc_friction'"),
+    ("{mpc_friction_coefficient: 7}", r"env.controller: .*friction_coefficient must be in"),
+    ("{max_forward_speed: 9, mode: stand}", r"\['max_forward_speed', 'mode'\] are the controller node's"),
+])
+def test_bad_env_controller_stops_train_es_before_any_rollout(controller, message, tmp_path, capsys):
+    assert train_es_main(["--set", f"env.controller={controller}", "--run-dir", str(tmp_path / "run")]) == 2
+    assert re.search(message, capsys.readouterr().err)
+    assert not (tmp_path / "run").exists()
+    # a policy file's training settings do not stop it loading: only running episodes checks them
+    assert load_train_config(overrides=[f"env.controller={controller}"]).env.controller
 
 
 def test_env_controller_overrides_reach_the_episodes_controller():

@@ -35,8 +35,8 @@ from pathlib import Path
 
 CLOCKS = ("lockstep", "realtime")
 # SCHED_FIFO priority of the composed 500 Hz chain in realtime: above every normal process (a
-# user's tool starting beside it), below the kernel's threaded interrupts (50 on PREEMPT_RT is
-# theirs by default, so a robot computer with that kernel may want 49 or less).
+# user's tool starting beside it). A PREEMPT_RT kernel runs its threaded interrupts at 50 too, so a
+# robot computer with that kernel may want 49 or less.
 CHAIN_PRIORITY = 50
 BRIDGES = ("sim", "virtual", "hardware")
 NAMESPACE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")

@@ -256,6 +256,8 @@ class HardwareBridge:
         """Start the link thread; with ``realtime_priority``, first make the calling thread (the node's
         executor) SCHED_FIFO, which the link thread inherits. Returns how the scheduling went."""
         scheduling = "normal"
+        if os.sched_getscheduler(0) == os.SCHED_FIFO:  # e.g. composed: control_chain's priority
+            scheduling = f"SCHED_FIFO {os.sched_getparam(0).sched_priority} (inherited)"
         if self.config.realtime_priority:
             try:
                 os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.config.realtime_priority))
@@ -365,7 +367,10 @@ class HardwareBridge:
                     packet = self.logic.motor_command(time.monotonic())
                     self._count_send()
                 self.link.send(packet)
-                self.pacer.advance()
+                skipped = self.pacer.advance()
+                if skipped and self.logic.watchdog.accepted:  # sends that never happened: missed deadlines
+                    with self._lock:
+                        self.deadlines.skipped(skipped)
 
     def _count_send(self) -> None:
         """Realtime: one period's send, and whether a new command came since the last (lock held)."""

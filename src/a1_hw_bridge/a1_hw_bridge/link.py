@@ -98,14 +98,17 @@ class Pacer:
         """Seconds until the current deadline (negative once it has passed)."""
         return self.deadline - time.monotonic()
 
-    def advance(self) -> None:
-        """Move to the next deadline."""
+    def advance(self) -> int:
+        """Move to the next deadline; the number of periods skipped (none unless over 0.1 s behind,
+        when it starts again from now instead of catching up)."""
         self.deadline += self.period
         late = -self.remaining()
         if late > 0:
             self.overruns += 1
             if late > 0.1:
                 self.deadline = time.monotonic()
+                return int(late / self.period)
+        return 0
 
     def sleep(self) -> None:
         """Sleep until the current deadline."""

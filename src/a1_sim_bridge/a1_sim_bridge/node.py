@@ -15,7 +15,8 @@ its report unpauses once it has a publisher on every topic it records, so it see
 QoS of the 500 Hz topics: RELIABLE, KEEP_LAST 1, VOLATILE (see docs/architecture.md).
 /diagnostics (1 Hz) counts what the robot sees of its controller: ``uncommanded_steps``, steps
 applied with no command accepted since the step before, or (realtime) with one sent after the
-step's deadline (a missed 2 ms deadline); ``latency_*_ms``,
+step's deadline, and the periods skipped after falling over 0.1 s behind (missed 2 ms deadlines,
+out of ``deadline_periods``: steps and skipped periods); ``latency_*_ms``,
 wall time from publishing a step's sensors to receiving the first command stamped for it, over the
 last second, answers within 0.1 s only; ``lowest_base_height_m`` since the last report;
 ``last_command_received_s``, the sim time the command in force was accepted at (its watchdog's
@@ -462,8 +463,9 @@ class SimBridgeNode(Node):
             self._fall_recorded = False
 
     def _publish_diagnostics(self) -> None:
-        with self._lock:
+        with self._lock:  # the totals with the window: a skip lands wholly in one report
             window = self.deadlines.window()
+            missed, periods = self.deadlines.uncommanded, self.deadlines.periods
             lowest, self._lowest_base_height = self._lowest_base_height, float("inf")
         now = time.monotonic()
         t0, n0 = self._rate_window
@@ -491,7 +493,7 @@ class SimBridgeNode(Node):
             "last_command_received_s": f"{wd.received_at:.3f}" if math.isfinite(wd.received_at) else "none",
             "late_commands": self._late_commands, "lockstep_timeouts": self._lockstep_timeouts,
             "realtime_overruns": self._overruns, "paused": self._paused,
-            "uncommanded_steps": self.deadlines.uncommanded, "deadline_periods": self.deadlines.periods, **window,
+            "uncommanded_steps": missed, "deadline_periods": periods, **window,
             "lowest_base_height_m": f"{lowest:.3f}" if self.publish_ground_truth else "n/a",
             "base_height_m": f"{base_z:.3f}",
         }

@@ -113,14 +113,18 @@ class EnvConfig:
         _choice("env.world", self.world, WORLD_NAMES)
         require_range("env.ground_friction", self.ground_friction, 0.0, 5.0, low_open=True)
         self.profile.validated()
-        if self.controller:
-            self.controller_config()  # a bad name or value fails here, before any rollout
         return self
 
     def controller_config(self) -> ControllerConfig:
-        """The controller the episodes run: config/convex_mpc.yaml with ``controller`` over it."""
-        from convex_mpc_node.controller import load_controller_config  # local: 0.3 s of imports
+        """The controller the episodes run: config/convex_mpc.yaml with ``controller`` over it. Checked
+        here (train_es calls it before any rollout), not on every load: a policy file's training
+        settings must not stop it loading in a node that never uses them."""
+        from convex_mpc_node.controller import NODE_ONLY_PARAMETERS, load_controller_config  # local: 0.3 s
 
+        node_only = sorted(set(self.controller) & NODE_ONLY_PARAMETERS)
+        if node_only:
+            raise ConfigError(f"env.controller: {node_only} are the controller node's parameters, not the "
+                              "controller's: an episode has no use for them")
         try:
             return load_controller_config(overrides=self.controller)
         except ConfigError as exc:

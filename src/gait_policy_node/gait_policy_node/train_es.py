@@ -273,8 +273,10 @@ def prepare_run(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
         if bad:
             raise ConfigError(f"--resume can only change {list(RESUMABLE_OVERRIDES)}, not {bad}")
         config = load_train_config(run_dir / "config.yaml", overrides)
+        config.env.controller_config()  # env.controller: a bad one fails here, not in a worker
         return config, run_dir
     config = load_train_config(args.config, overrides)
+    config.env.controller_config()
     run_dir = args.run_dir
     if run_dir is not None and (run_dir / "checkpoint.npz").exists():
         raise ConfigError(f"{run_dir} already holds a run; continue it with --resume {run_dir}")
