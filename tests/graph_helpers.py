@@ -327,7 +327,8 @@ def cpu_seconds(pid: int) -> float:
 
 # Scheduling experiments on realtime graphs (benchmarks/graph_realtime.py, benchmarks/soak.py);
 # why: docs/architecture.md, "Realtime on a small computer".
-FIFO_TARGETS = ("sim_bridge", "convex_mpc", "control_chain", "gait_policy", "probe")  # probe: the benchmark itself
+# probe: the benchmark itself; virtual_a1: the robot's own loop (a real A1 runs it on its own computer)
+FIFO_TARGETS = ("sim_bridge", "convex_mpc", "control_chain", "gait_policy", "virtual_a1", "probe")
 DDS_TRANSPORTS = ("DEFAULT", "UDPv4", "SHM", "LARGE_DATA")
 
 

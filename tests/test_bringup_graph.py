@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 import pytest
-from a1_bringup.control_chain import parse_settings, use_realtime_priority
+from a1_bringup.control_chain import LINK_SWITCH_INTERVAL, parse_settings, prepare_process, use_realtime_priority
 from a1_bringup.graph import CHAIN_PRIORITY, composed, describe, main, namespace_remaps, with_settings
 from graph_helpers import CONFIG, ROOT, add_scheduling_options, scheduling_from_args
 
@@ -130,6 +130,17 @@ def test_realtime_priority_is_fifo_for_every_thread_or_a_message_and_normal_sche
         assert out == ["True", "True", "True", "True"] and err == ""
     else:
         assert out == ["False", "False", "False", "False"] and "not permitted" in err and "normal priority" in err
+
+
+def test_with_the_hardware_bridge_the_gil_changes_hands_within_half_a_millisecond():
+    default = sys.getswitchinterval()
+    try:
+        prepare_process("sim", 0)  # one Python thread in the step: Python's default stays
+        assert sys.getswitchinterval() == default
+        prepare_process("hardware", 0)  # the link thread beside the executor's
+        assert sys.getswitchinterval() == pytest.approx(LINK_SWITCH_INTERVAL) and LINK_SWITCH_INTERVAL < 0.002
+    finally:
+        sys.setswitchinterval(default)
 
 
 def test_a_refused_realtime_priority_is_said_and_the_chain_goes_on(monkeypatch, capsys):

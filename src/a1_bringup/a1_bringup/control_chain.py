@@ -25,6 +25,8 @@ the real (or virtual) A1 damps its motors on its own once the commands stop, as 
 process at SCHED_FIFO N, so a user's tool starting beside it (a new Python process takes most of a
 core for a second) does not delay its 2 ms steps; where that is not permitted it says so and runs at
 normal priority. Its threads, Fast DDS's included, inherit it; the MPC worker runs one lower.
+With the hardware bridge its UDP link thread shares the interpreter with the executor's thread, so
+the process hands the GIL over after 0.5 ms instead of Python's 5 ms (``LINK_SWITCH_INTERVAL``).
 """
 
 from __future__ import annotations
@@ -45,6 +47,10 @@ from rclpy.utilities import remove_ros_args
 from a1_bringup.graph import parse_setting
 
 CHAIN_BRIDGES = ("sim", "hardware")
+# [s] sys.setswitchinterval with the hardware bridge: a state that arrives while the executor's thread
+# runs Python waits at most this long for the GIL (Python's default 5 ms is over two control
+# periods). Measured against the virtual A1: docs/architecture.md, "Realtime priority by default".
+LINK_SWITCH_INTERVAL = 0.0005
 
 
 def chain_nodes(bridge: str, estimator: bool) -> list[tuple[str, Callable[..., Any]]]:
@@ -94,7 +100,7 @@ def main(args: list[str] | None = None) -> None:
     options = parser.parse_args(remove_ros_args(argv)[1:])
     if not 0 <= options.realtime_priority <= 99:
         parser.error(f"--realtime-priority must be in [0, 99], got {options.realtime_priority}")
-    use_realtime_priority(options.realtime_priority)  # before rclpy starts its threads: they inherit it
+    prepare_process(options.bridge, options.realtime_priority)
     nodes = chain_nodes(options.bridge, options.estimator)
     try:
         overrides = parse_settings(options.set, [name for name, _ in nodes])
@@ -107,6 +113,13 @@ def main(args: list[str] | None = None) -> None:
         factories[0] = functools.partial(factories[0], own_thread=False)
     run_nodes("control_chain", factories, argv, poll=_poll_sim if options.bridge == "sim" else None,
               connect=_hand_commands_to_bridge)
+
+
+def prepare_process(bridge: str, realtime_priority: int) -> None:
+    """Scheduling and interpreter settings, before rclpy starts its threads (they inherit them)."""
+    use_realtime_priority(realtime_priority)
+    if bridge == "hardware":  # two Python threads in the 2 ms path: the executor's and the link's
+        sys.setswitchinterval(LINK_SWITCH_INTERVAL)
 
 
 def use_realtime_priority(priority: int) -> bool:
