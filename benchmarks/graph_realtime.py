@@ -11,7 +11,8 @@ subscribes to nothing else, so it takes no CPU from the graph it measures):
 - missed deadlines: share of the bridge's 2 ms steps applied with no new command since the step
   before (the robot then gets the previous command again), or, with the sim bridge, with one sent
   (DDS source time) only after that step's deadline (since 2026-12-05; before, a command that came
-  late but before the next step counted as on time);
+  late but before the next step counted as on time), and periods the bridge skipped after falling
+  over 0.1 s behind (a whole-process stall; counted since the twelfth session of 2026-12-05);
 - longest command gap: the longest time between two steps with a new command (2 ms: none missed);
 - sensor-to-command latency: wall time from the bridge publishing step k's sensors to it receiving
   the command stamped k; the median of the per-second medians, and the worst per-second p99;
@@ -122,10 +123,11 @@ def measure(form: str, args: argparse.Namespace, fifo: dict[str, int]) -> dict:
                 status.name = "a1_sim_bridge"
             if status.name == "a1_sim_bridge":
                 if reports:  # one line a second: where a run goes wrong, and when
-                    steps = int(values["deadline_periods"]) - int(reports[-1]["deadline_periods"])
+                    periods = int(values["deadline_periods"]) - int(reports[-1]["deadline_periods"])
                     missed = int(values["uncommanded_steps"]) - int(reports[-1]["uncommanded_steps"])
                     damped = int(values["damping_fallbacks"]) - int(reports[-1]["damping_fallbacks"])
-                    print(f"{form} t={time.monotonic() - started:5.1f} s  missed {100 * missed / max(steps, 1):5.1f} %"
+                    share = 100 * missed / max(periods, 1)
+                    print(f"{form} t={time.monotonic() - started:5.1f} s  missed {share:5.1f} %"
                           f"  gap {values['longest_command_gap_ms']:>3} ms  watchdog damped {damped}x  lowest base "
                           f"{values['lowest_base_height_m']} m  controller {controller.get('state', '?')}, step "
                           f"median {controller.get('step_median_ms', '?')} ms, QP median "

@@ -358,7 +358,8 @@ class SimBridgeNode(Node):
         with self._lock:
             # The periods skipped were deadlines the robot passed with no new command: in one
             # process with the controller, a stall of both shows only here.
-            self.deadlines.skipped(skipped)
+            if skipped:
+                self.deadlines.skipped(skipped)
             self._set_answer_deadline(after)
         return max(0.0, self._next_deadline - after)
 

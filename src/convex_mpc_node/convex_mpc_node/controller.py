@@ -141,8 +141,12 @@ def load_controller_config(path=None, ignore: frozenset[str] = frozenset(), over
     params = {}
     for each in paths:
         params.update(load_node_parameters(each, "convex_mpc"))
-    params.update(overrides or {})
     skip = ignore or NODE_ONLY_PARAMETERS
+    node_only = sorted(set(overrides or {}) & skip)
+    if node_only:  # the file may hold them (the node reads it too); an override means the core
+        raise ConfigError(f"overrides: {node_only} are the controller node's parameters, not the "
+                          "controller's")
+    params.update(overrides or {})
     source = " + ".join([str(p) for p in paths] + (["overrides"] if overrides else []))
     return controller_config_from_parameters({k: v for k, v in params.items() if k not in skip}, source)
 

@@ -119,12 +119,8 @@ class EnvConfig:
         """The controller the episodes run: config/convex_mpc.yaml with ``controller`` over it. Checked
         here (train_es calls it before any rollout), not on every load: a policy file's training
         settings must not stop it loading in a node that never uses them."""
-        from convex_mpc_node.controller import NODE_ONLY_PARAMETERS, load_controller_config  # local: 0.3 s
+        from convex_mpc_node.controller import load_controller_config  # local: 0.3 s of imports
 
-        node_only = sorted(set(self.controller) & NODE_ONLY_PARAMETERS)
-        if node_only:
-            raise ConfigError(f"env.controller: {node_only} are the controller node's parameters, not the "
-                              "controller's: an episode has no use for them")
         try:
             return load_controller_config(overrides=self.controller)
         except ConfigError as exc:
