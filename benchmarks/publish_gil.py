@@ -4,14 +4,18 @@ In the composed chain every Python thread shares one interpreter, so a publish c
 inside Fast DDS (a participant joining or leaving: docs/architecture.md, "The joiner stall, where
 it sits") stops all of them if it keeps the GIL. This publishes a large serialized message (so one
 call takes milliseconds) while a second Python thread loops and records its longest gap:
-- ``rclpy``: ``Publisher.publish(bytes)``, what the stack's nodes call;
+- ``rclpy``: ``Publisher.publish(bytes)``, what the stack's nodes call (rclpy also copies the
+  bytes once under the GIL before the write, so its calls take longer for large messages);
 - ``ctypes``: ``rcl_publish_serialized_message`` on the same rcl publisher
   (``Publisher.handle.pointer``), called through ctypes, which releases the GIL for the call.
-A variant that holds the GIL shows a longest gap close to its longest publish; one that releases
-it shows gaps of about the interpreter's switch interval (set to 0.2 ms here). Then the cost of
-one call for a message of the chain's size (a 12-joint JointState), each way, back to back.
+A variant that holds the GIL shows a longest gap about as long as its longest publish; one that
+releases it shows gaps of about the interpreter's switch interval (set to 0.2 ms here). Each
+variant first publishes a few times untimed (Fast DDS fills its histories), and the two alternate
+over ``--rounds``. Then the cost of one call for a message of the chain's size (a serialized
+12-joint JointState), each way, back to back with no other thread running.
+Memory: the writer and the unread reader keep one copy each (depth 1), so about 3x the message.
 
-Usage: source scripts/env.sh && python benchmarks/publish_gil.py [--megabytes 16] [--publishes 30]
+Usage: source scripts/env.sh && python benchmarks/publish_gil.py [--megabytes 16] [--publishes 15] [--rounds 2]
 """
 
 from __future__ import annotations
@@ -22,10 +26,17 @@ import json
 import sys
 import threading
 import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from rclpy.publisher import Publisher
+
 SWITCH_INTERVAL = 0.0002  # [s] short, so a thread that releases the GIL lets the other run at once
+WARM_UP = 3  # untimed publishes per variant and round
+Publish = Callable[[bytes], None]
 
 
 class _Allocator(ctypes.Structure):  # rcutils_allocator_t
@@ -33,17 +44,26 @@ class _Allocator(ctypes.Structure):  # rcutils_allocator_t
                 ("zero_allocate", ctypes.c_void_p), ("state", ctypes.c_void_p)]
 
 
+class _ErrorString(ctypes.Structure):  # rcutils_error_string_t (rcl_get_error_string is a macro for it)
+    _fields_ = [("str", ctypes.c_char * 1024)]
+
+
 class _SerializedMessage(ctypes.Structure):  # rcl_serialized_message_t (rcutils_uint8_array_t)
     _fields_ = [("buffer", ctypes.c_void_p), ("buffer_length", ctypes.c_size_t),
                 ("buffer_capacity", ctypes.c_size_t), ("allocator", _Allocator)]
 
 
-def ctypes_publisher(publisher):
-    """A function publishing serialized bytes on ``publisher``'s rcl publisher without the GIL."""
+def ctypes_publisher(publisher: Publisher) -> Publish:
+    """A function publishing serialized bytes on ``publisher``'s rcl publisher without the GIL: the
+    call a publishing thread would need so that a wait inside Fast DDS holds no other thread. It
+    does not hold the publisher's handle the way rclpy does, so the publisher must outlive it."""
+    # rclpy has loaded librcl.so and librcutils.so already: CDLL finds those copies by their names.
     rcl = ctypes.CDLL("librcl.so")
     rcl.rcl_publish_serialized_message.argtypes = [ctypes.c_void_p, ctypes.POINTER(_SerializedMessage),
                                                    ctypes.c_void_p]
     rcl.rcl_publish_serialized_message.restype = ctypes.c_int32
+    rcutils = ctypes.CDLL("librcutils.so")
+    rcutils.rcutils_get_error_string.restype = _ErrorString
     address = publisher.handle.pointer
 
     def publish(raw: bytes) -> None:
@@ -51,12 +71,17 @@ def ctypes_publisher(publisher):
         message = _SerializedMessage(ctypes.cast(buffer, ctypes.c_void_p), len(raw), len(raw), _Allocator())
         ret = rcl.rcl_publish_serialized_message(address, ctypes.byref(message), None)
         if ret != 0:
-            raise RuntimeError(f"rcl_publish_serialized_message returned {ret}")
+            error = rcutils.rcutils_get_error_string().str.decode(errors="replace")
+            rcutils.rcutils_reset_error()
+            raise RuntimeError(f"rcl_publish_serialized_message returned {ret}: {error}")
     return publish
 
 
-def measure(publish, raw: bytes, count: int) -> dict:
-    """``count`` publishes 50 ms apart; their durations and the other thread's longest gap [s]."""
+def measure(publish: Publish, raw: bytes, count: int) -> dict[str, list[float]]:
+    """``count`` publishes, each followed by 50 ms of sleep (the other thread runs alone then):
+    their durations and the other thread's longest gap [s]."""
+    for _ in range(WARM_UP):
+        publish(raw)
     stop = threading.Event()
     longest = [0.0]
 
@@ -70,19 +95,21 @@ def measure(publish, raw: bytes, count: int) -> dict:
     thread = threading.Thread(target=loop)
     thread.start()
     durations = []
-    for _ in range(count):
-        start = time.perf_counter()
-        publish(raw)
-        durations.append(time.perf_counter() - start)
-        time.sleep(0.05)
-    stop.set()
-    thread.join()
-    return {"publish_median_s": float(np.median(durations)), "publish_max_s": max(durations),
-            "other_thread_longest_gap_s": longest[0]}
+    try:
+        for _ in range(count):
+            start = time.perf_counter()
+            publish(raw)
+            durations.append(time.perf_counter() - start)
+            time.sleep(0.05)
+    finally:
+        stop.set()
+        thread.join()
+    return {"durations": durations, "gaps": [longest[0]]}
 
 
-def per_call(publish, raw: bytes, count: int = 20000) -> float:
-    """Mean time of one publish of ``raw`` [s], back to back."""
+def per_call(publish: Publish, raw: bytes, count: int = 20000) -> float:
+    """Mean time of one publish of ``raw`` [s], back to back: what a variant costs the 2 ms step
+    for each of its small messages."""
     start = time.perf_counter()
     for _ in range(count):
         publish(raw)
@@ -92,12 +119,15 @@ def per_call(publish, raw: bytes, count: int = 20000) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--megabytes", type=float, default=16.0, help="serialized message size [MB]")
-    parser.add_argument("--publishes", type=int, default=30)
+    parser.add_argument("--publishes", type=int, default=15, help="timed publishes per variant and round")
+    parser.add_argument("--rounds", type=int, default=2, help="rounds of both variants, alternating")
     args = parser.parse_args()
     if not 0.1 <= args.megabytes <= 256:
         parser.error(f"--megabytes must be in [0.1, 256], got {args.megabytes}")
     if not 1 <= args.publishes <= 1000:
         parser.error(f"--publishes must be in [1, 1000], got {args.publishes}")
+    if not 1 <= args.rounds <= 20:
+        parser.error(f"--rounds must be in [1, 20], got {args.rounds}")
 
     import rclpy
     from rclpy.node import Node
@@ -107,32 +137,41 @@ def main() -> None:
 
     sys.setswitchinterval(SWITCH_INTERVAL)
     rclpy.init()
-    node = Node("publish_gil_probe")
-    publisher = node.create_publisher(UInt8MultiArray, "/publish_gil_probe", 10)
-    node.create_subscription(UInt8MultiArray, "/publish_gil_probe", lambda _: None, 10, raw=True)  # a reader
-    message = UInt8MultiArray()
-    message.data = bytes(int(args.megabytes * 1e6))
-    raw = serialize_message(message)
-    results = {"rclpy": measure(publisher.publish, raw, args.publishes),
-               "ctypes": measure(ctypes_publisher(publisher), raw, args.publishes)}
-    joints = node.create_publisher(JointState, "/publish_gil_probe_joints", 10)
-    node.create_subscription(JointState, "/publish_gil_probe_joints", lambda _: None, 10, raw=True)
-    small = JointState(name=[f"joint_{i}" for i in range(12)], position=[0.1] * 12, velocity=[0.2] * 12,
-                       effort=[0.3] * 12)
-    small_raw = serialize_message(small)
-    for name, publish in (("rclpy", joints.publish), ("ctypes", ctypes_publisher(joints))):
-        results[name]["small_message_publish_mean_s"] = per_call(publish, small_raw)
-    node.destroy_node()
-    rclpy.shutdown()
+    try:
+        node = Node("publish_gil_probe")
+        publisher = node.create_publisher(UInt8MultiArray, "/publish_gil_probe", 1)
+        node.create_subscription(UInt8MultiArray, "/publish_gil_probe", lambda _: None, 1, raw=True)  # a reader
+        message = UInt8MultiArray()
+        message.data = bytes(int(args.megabytes * 1e6))
+        raw = serialize_message(message)
+        variants = {"rclpy": publisher.publish, "ctypes": ctypes_publisher(publisher)}
+        pooled: dict[str, dict[str, list[float]]] = {name: {"durations": [], "gaps": []} for name in variants}
+        for round_ in range(args.rounds):
+            for name in (list(variants) if round_ % 2 == 0 else list(variants)[::-1]):
+                for key, values in measure(variants[name], raw, args.publishes).items():
+                    pooled[name][key] += values
+        del raw, message
+        joints = node.create_publisher(JointState, "/publish_gil_probe_joints", 10)
+        node.create_subscription(JointState, "/publish_gil_probe_joints", lambda _: None, 10, raw=True)
+        small_raw = serialize_message(JointState(name=[f"joint_{i}" for i in range(12)], position=[0.1] * 12,
+                                                 velocity=[0.2] * 12, effort=[0.3] * 12))
+        small = {"rclpy": per_call(joints.publish, small_raw), "ctypes": per_call(ctypes_publisher(joints), small_raw)}
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
 
-    print(f"{args.publishes} publishes of {len(raw) / 1e6:.1f} MB, switch interval {SWITCH_INTERVAL * 1e3:.1f} ms")
+    results = {name: {"publish_median_s": float(np.median(r["durations"])), "publish_max_s": max(r["durations"]),
+                      "other_thread_longest_gap_s": max(r["gaps"]), "small_message_publish_mean_s": small[name]}
+               for name, r in pooled.items()}
+    print(f"{args.rounds} x {args.publishes} publishes of {args.megabytes:g} MB a variant, "
+          f"switch interval {SWITCH_INTERVAL * 1e3:.1f} ms")
     print(f"{'variant':8} {'publish median':>15} {'publish max':>12} {'other thread longest gap':>25} "
           f"{f'one {len(small_raw)} B JointState':>24}")
     for name, r in results.items():
         print(f"{name:8} {r['publish_median_s'] * 1e3:12.2f} ms {r['publish_max_s'] * 1e3:9.2f} ms "
               f"{r['other_thread_longest_gap_s'] * 1e3:22.2f} ms {r['small_message_publish_mean_s'] * 1e6:21.2f} us")
-    print(json.dumps({"message_bytes": len(raw), "small_message_bytes": len(small_raw), "publishes": args.publishes,
-                      "switch_interval_s": SWITCH_INTERVAL,
+    print(json.dumps({"message_bytes": round(args.megabytes * 1e6), "small_message_bytes": len(small_raw),
+                      "publishes_per_variant": args.publishes * args.rounds, "switch_interval_s": SWITCH_INTERVAL,
                       **{f"{name}_{key}": value for name, r in results.items() for key, value in r.items()}}))
 
 
