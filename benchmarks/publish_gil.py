@@ -77,7 +77,7 @@ def ctypes_publisher(publisher: Publisher) -> Publish:
     return publish
 
 
-def measure(publish: Publish, raw: bytes, count: int) -> dict[str, list[float]]:
+def measure(publish: Publish, raw: bytes, count: int) -> tuple[list[float], float]:
     """``count`` publishes, each followed by 50 ms of sleep (the other thread runs alone then):
     their durations and the other thread's longest gap [s]."""
     for _ in range(WARM_UP):
@@ -104,7 +104,7 @@ def measure(publish: Publish, raw: bytes, count: int) -> dict[str, list[float]]:
     finally:
         stop.set()
         thread.join()
-    return {"durations": durations, "gaps": [longest[0]]}
+    return durations, longest[0]
 
 
 def per_call(publish: Publish, raw: bytes, count: int = 20000) -> float:
@@ -145,11 +145,14 @@ def main() -> None:
         message.data = bytes(int(args.megabytes * 1e6))
         raw = serialize_message(message)
         variants = {"rclpy": publisher.publish, "ctypes": ctypes_publisher(publisher)}
-        pooled: dict[str, dict[str, list[float]]] = {name: {"durations": [], "gaps": []} for name in variants}
+        durations: dict[str, list[float]] = {name: [] for name in variants}
+        gap: dict[str, float] = dict.fromkeys(variants, 0.0)
         for round_ in range(args.rounds):
             for name in (list(variants) if round_ % 2 == 0 else list(variants)[::-1]):
-                for key, values in measure(variants[name], raw, args.publishes).items():
-                    pooled[name][key] += values
+                round_durations, round_gap = measure(variants[name], raw, args.publishes)
+                durations[name] += round_durations
+                gap[name] = max(gap[name], round_gap)
+        message_bytes = len(raw)
         del raw, message
         joints = node.create_publisher(JointState, "/publish_gil_probe_joints", 10)
         node.create_subscription(JointState, "/publish_gil_probe_joints", lambda _: None, 10, raw=True)
@@ -160,9 +163,9 @@ def main() -> None:
     finally:
         rclpy.try_shutdown()
 
-    results = {name: {"publish_median_s": float(np.median(r["durations"])), "publish_max_s": max(r["durations"]),
-                      "other_thread_longest_gap_s": max(r["gaps"]), "small_message_publish_mean_s": small[name]}
-               for name, r in pooled.items()}
+    results = {name: {"publish_median_s": float(np.median(durations[name])), "publish_max_s": max(durations[name]),
+                      "other_thread_longest_gap_s": gap[name], "small_message_publish_mean_s": small[name]}
+               for name in variants}
     print(f"{args.rounds} x {args.publishes} publishes of {args.megabytes:g} MB a variant, "
           f"switch interval {SWITCH_INTERVAL * 1e3:.1f} ms")
     print(f"{'variant':8} {'publish median':>15} {'publish max':>12} {'other thread longest gap':>25} "
@@ -170,7 +173,7 @@ def main() -> None:
     for name, r in results.items():
         print(f"{name:8} {r['publish_median_s'] * 1e3:12.2f} ms {r['publish_max_s'] * 1e3:9.2f} ms "
               f"{r['other_thread_longest_gap_s'] * 1e3:22.2f} ms {r['small_message_publish_mean_s'] * 1e6:21.2f} us")
-    print(json.dumps({"message_bytes": round(args.megabytes * 1e6), "small_message_bytes": len(small_raw),
+    print(json.dumps({"message_bytes": message_bytes, "small_message_bytes": len(small_raw),
                       "publishes_per_variant": args.publishes * args.rounds, "switch_interval_s": SWITCH_INTERVAL,
                       **{f"{name}_{key}": value for name, r in results.items() for key, value in r.items()}}))
 
