@@ -9,7 +9,13 @@ import subprocess
 import sys
 
 import pytest
-from a1_bringup.control_chain import LINK_SWITCH_INTERVAL, parse_settings, prepare_process, use_realtime_priority
+from a1_bringup.control_chain import (
+    LINK_SWITCH_INTERVAL,
+    connect_chain,
+    parse_settings,
+    prepare_process,
+    use_realtime_priority,
+)
 from a1_bringup.graph import CHAIN_PRIORITY, composed, describe, main, namespace_remaps, with_settings
 from graph_helpers import CONFIG, ROOT, add_scheduling_options, scheduling_from_args
 
@@ -141,6 +147,60 @@ def test_with_the_hardware_bridge_the_gil_changes_hands_within_half_a_millisecon
         assert sys.getswitchinterval() == pytest.approx(LINK_SWITCH_INTERVAL) and LINK_SWITCH_INTERVAL < 0.002
     finally:
         sys.setswitchinterval(default)
+
+
+class _Topic:
+    """A publisher or subscription as connect_chain sees it: its resolved topic name."""
+
+    def __init__(self, topic_name: str) -> None:
+        self.topic_name = topic_name
+
+
+class _Sensors:
+    def __init__(self) -> None:
+        self.on_wire = True
+
+    def take(self, imu: bytes, contacts: bytes, joints: bytes) -> None:
+        """(what the bridge hands over)"""
+
+    def leave_wire(self) -> None:
+        self.on_wire = False
+
+
+def _chain(remapped: str = "", sim: bool = True) -> tuple[argparse.Namespace, argparse.Namespace]:
+    """A bridge and a controller as connect_chain sees them, ``remapped``: the topic whose publisher
+    a fault relay took (its publisher then publishes on /fault_in<topic>)."""
+    def topic(name: str) -> _Topic:
+        return _Topic(f"/fault_in{name}" if name == remapped else name)
+
+    sensor_topics = ("/imu/data", "/foot_contacts", "/joint_states")
+    bridge = argparse.Namespace(pub_imu=topic("/imu/data"), pub_contacts=topic("/foot_contacts"),
+                                pub_joints=topic("/joint_states"), subscriptions=[_Topic("/motor_command")],
+                                take_command=lambda raw: None)
+    if sim:
+        bridge.sensor_sinks = []
+    controller = argparse.Namespace(pub_command=topic("/motor_command"), command_sinks=[], sensors=_Sensors(),
+                                    subscriptions=[_Topic(t) for t in (*sensor_topics, "/cmd_vel")])
+    return bridge, controller
+
+
+def test_the_chain_hands_over_only_what_the_wire_links_and_a_fault_relay_keeps_its_topic():
+    bridge, controller = _chain()
+    connect_chain([bridge, controller], estimator=False)
+    assert controller.command_sinks == [bridge.take_command]
+    assert bridge.sensor_sinks == [controller.sensors.take] and not controller.sensors.on_wire
+    bridge, controller = _chain()
+    connect_chain([bridge, argparse.Namespace(), controller], estimator=True)  # the controller waits for /odom
+    assert controller.command_sinks and not bridge.sensor_sinks and controller.sensors.on_wire
+    bridge, controller = _chain(sim=False)  # the hardware bridge: commands only
+    connect_chain([bridge, controller], estimator=False)
+    assert controller.command_sinks and controller.sensors.on_wire
+    bridge, controller = _chain(remapped="/motor_command")  # a relay drops or delays commands
+    connect_chain([bridge, controller], estimator=False)
+    assert not controller.command_sinks and bridge.sensor_sinks
+    bridge, controller = _chain(remapped="/imu/data")  # a relay freezes the IMU
+    connect_chain([bridge, controller], estimator=False)
+    assert controller.command_sinks and not bridge.sensor_sinks and controller.sensors.on_wire
 
 
 def test_a_refused_realtime_priority_is_said_and_the_chain_goes_on(monkeypatch, capsys):

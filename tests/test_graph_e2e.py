@@ -147,11 +147,15 @@ def test_two_namespaced_lockstep_graphs_walk_side_by_side(tmp_path, rclpy_contex
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize(("controller_params", "composed_chain"),
-                         [((), False), (("embedded_estimator:=true", "mpc_period_steps:=2"), False), ((), True)],
-                         ids=["estimator_node", "embedded_estimator_mpc_every_2nd_step", "composed_chain"])
+                         [((), False), (("embedded_estimator:=true", "mpc_period_steps:=2"), False), ((), True),
+                          (("embedded_estimator:=true",), True)],
+                         ids=["estimator_node", "embedded_estimator_mpc_every_2nd_step", "composed_chain",
+                              "composed_chain_sensors_handed_over"])
 def test_cmd_vel_1_mps_walks_within_10_percent(graph, controller_params, composed_chain):
     """composed_chain: bridge, estimator and controller in one control_chain process, and what this
-    process (another one) sees of their 500 Hz traffic is what the separate nodes publish."""
+    process (another one) sees of their 500 Hz traffic is what the separate nodes publish; with the
+    estimator embedded the bridge hands the sensors to the controller in the process, and their wire
+    copies still go out."""
     g, watcher, executor = graph
     if composed_chain:
         watcher.watch_joints_and_commands()

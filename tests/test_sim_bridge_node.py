@@ -20,7 +20,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from ros_helpers import spin_until
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
@@ -438,6 +438,36 @@ def test_a_command_handed_over_in_process_steps_lockstep_at_once_and_its_wire_co
         bridge.take_command(stale)
         bridge._on_command(stale, {"source_timestamp": time.time_ns()})  # its wire copy: not counted again
         assert (bridge.watchdog.accepted, bridge._late_commands) == (2, 1)
+    finally:
+        bridge.shutdown()
+        bridge.destroy_node()
+
+
+@pytest.mark.ros
+def test_sensors_handed_over_in_process_let_lockstep_run_on_poll_alone(rclpy_context):
+    """Composed with its controller (a1_bringup.control_chain), the bridge hands each step's three
+    sensor messages, the bytes it publishes, to a sink as it publishes them: a controller answering
+    there commands every step within poll, with no executor at all (the whole step in one call)."""
+    overrides = [Parameter("clock_mode", value="lockstep"), Parameter("lockstep_timeout", value=5.0)]
+    bridge = SimBridgeNode(own_thread=False, context=rclpy_context, parameter_overrides=overrides)
+    hold = JointCommand.hold(a1())
+    handed: list[tuple[bytes, bytes, bytes]] = []
+
+    def controller(imu: bytes, contacts: bytes, joints: bytes) -> None:
+        handed.append((imu, contacts, joints))
+        stamp = ns_from_stamp(deserialize_message(joints, JointState).header.stamp)
+        bridge.take_command(serialize_message(motor_command_msg(hold, stamp_from_ns(stamp))))
+
+    bridge.sensor_sinks.append(controller)
+    try:
+        for _ in range(20):
+            assert bridge.poll() == 0.0
+        assert bridge.sim.steps == 19 and bridge.watchdog.accepted == 20  # (the first poll: the start pose)
+        assert bridge.deadlines.uncommanded == 0 and bridge._lockstep_timeouts == 0
+        stamps = [ns_from_stamp(deserialize_message(m, t).header.stamp)
+                  for imu, contacts, joints in handed for m, t in ((imu, Imu), (contacts, FootContacts),
+                                                                   (joints, JointState))]
+        assert stamps == [step * STEP_NS for step in range(20) for _ in range(3)]
     finally:
         bridge.shutdown()
         bridge.destroy_node()

@@ -5,10 +5,12 @@ with their own names, parameters and topics, spun by one executor in one process
 and the command it triggers never cross a process boundary, so the 2 ms step pays no wake-up of
 another process and no shared-memory transport (Fast DDS delivers within a process directly).
 With the sim bridge, the simulation steps in the executor's thread too (SimBridgeNode.poll): one
-Python thread does the whole step, and no second one waits for the GIL inside it; and the controller
+Python thread does the whole step, and no second one waits for the GIL inside it; the controller
 hands each command to the bridge (sim or hardware) as it publishes it (``take_command``), so the
-step need not wait for the executor to take it back off the wire. What another process sees on the wire
-(``ros2 topic echo``) is unchanged.
+step need not wait for the executor to take it back off the wire; and with the sim bridge and the
+estimator embedded in the controller, the bridge hands each step's sensors to the controller as it
+publishes them (``sensor_sinks``), so one call runs physics, sensors, control and command. What another
+process sees on the wire (``ros2 topic echo``) is unchanged.
 
     control_chain --bridge sim [--estimator] --set sim_bridge.clock_mode=realtime ... \\
         --ros-args --params-file config/a1_sim_bridge.yaml --params-file config/convex_mpc.yaml ...
@@ -112,7 +114,7 @@ def main(args: list[str] | None = None) -> None:
     if options.bridge == "sim":  # the simulation steps in the executor's thread: one Python thread
         factories[0] = functools.partial(factories[0], own_thread=False)
     run_nodes("control_chain", factories, argv, poll=_poll_sim if options.bridge == "sim" else None,
-              connect=_hand_commands_to_bridge)
+              connect=functools.partial(connect_chain, estimator=options.estimator))
 
 
 def prepare_process(bridge: str, realtime_priority: int) -> None:
@@ -145,11 +147,32 @@ def _poll_sim(nodes: list[Any]) -> float:
     return nodes[0].poll()
 
 
-def _hand_commands_to_bridge(nodes: list[Any]) -> None:
-    """The controller (created last) hands each command to the bridge (first) as it sends it: in
-    one thread the bridge would otherwise take it off the wire only after the controller's work
-    after the command (the filter update, /odom) and the executor's next wait."""
-    nodes[-1].command_sinks.append(nodes[0].take_command)
+def connect_chain(nodes: list[Any], estimator: bool) -> None:
+    """The in-process hand-offs between the chain's nodes (bridge first, controller last), each
+    only where the wire itself links the two: a remap (a fault relay's, tests/graph_helpers.py)
+    that sends a topic elsewhere leaves it to the wire, so what the relay does reaches the node.
+
+    - The controller hands each command to the bridge as it sends it: in one thread the bridge would
+      otherwise take it off the wire only after the controller's work after the command (the filter
+      update, /odom) and the executor's next wait.
+    - With the sim bridge and no estimator node (the controller embeds it), the bridge hands each
+      step's sensors to the controller as it publishes them, and the controller leaves their wire
+      copies: physics, sensors, control and command are one call in one thread, with no executor
+      wake-up and intake in between (measured: docs/architecture.md, "The sensors handed over").
+      With an estimator node the controller waits for its /odom off the wire anyway.
+    """
+    bridge, controller = nodes[0], nodes[-1]
+    if _wire_links(controller.pub_command, bridge):
+        controller.command_sinks.append(bridge.take_command)
+    if (hasattr(bridge, "sensor_sinks") and not estimator
+            and all(_wire_links(p, controller) for p in (bridge.pub_imu, bridge.pub_contacts, bridge.pub_joints))):
+        bridge.sensor_sinks.append(controller.sensors.take)
+        controller.sensors.leave_wire()
+
+
+def _wire_links(publisher: Any, node: Any) -> bool:
+    """``node`` subscribes to the topic ``publisher`` publishes on (resolved names, remaps applied)."""
+    return any(subscription.topic_name == publisher.topic_name for subscription in node.subscriptions)
 
 
 if __name__ == "__main__":

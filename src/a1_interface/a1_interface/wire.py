@@ -388,18 +388,41 @@ def decode_motor_command(buffer: bytes) -> tuple[JointCommand, int]:
 
 
 
+class SensorIntake:
+    """A node's intake of a bridge's three sensor messages as bytes (subscribe_sensors): from its
+    subscriptions, or handed over by a bridge in the same process (``take``)."""
+
+    def __init__(self, node, handlers: list[tuple[Any, str, Callable[[bytes], None]]], qos) -> None:
+        self._node = node
+        self._handlers = [handler for _, _, handler in handlers]
+        self.subscriptions = [node.create_subscription(msg_type, topic, handler, qos, raw=True)
+                              for msg_type, topic, handler in handlers]
+
+    def take(self, imu: bytes, contacts: bytes, joints: bytes) -> None:
+        """One step's messages handed over in-process, decoded and handled as if off the wire."""
+        for handler, raw in zip(self._handlers, (imu, contacts, joints), strict=True):
+            handler(raw)
+
+    def leave_wire(self) -> None:
+        """Take the sensors only by hand-off from now on (a bridge in this process gives each step's):
+        the wire copies would come again, later, and cost the executor their intake."""
+        for subscription in self.subscriptions:
+            self._node.destroy_subscription(subscription)
+        self.subscriptions = []
+
+
 def subscribe_sensors(node, qos, on_joints: Callable[[JointStateView], None], on_imu: Callable[[ImuView], None],
-                      on_contacts: Callable[[FootContactsView], None]) -> None:
+                      on_contacts: Callable[[FootContactsView], None]) -> SensorIntake:
     """Subscribe ``node`` (an rclpy Node) to a bridge's three sensor topics as bytes, decoded to views.
 
     In the order the bridges publish them, joint states last, so that within one executor wake-up a
     node that acts on /joint_states finds the same step's IMU and contacts already handed over. A
     malformed message (never one from an rmw publisher of the type) is dropped and logged.
     """
-    for msg_type, topic, decode, handler in ((Imu, contract.IMU, decode_imu, on_imu),
-                                             (FootContacts, contract.FOOT_CONTACTS, decode_foot_contacts, on_contacts),
-                                             (JointState, contract.JOINT_STATES, JointStateDecoder(), on_joints)):
-        node.create_subscription(msg_type, topic, _decoding(node, decode, handler), qos, raw=True)
+    return SensorIntake(node, [
+        (Imu, contract.IMU, _decoding(node, decode_imu, on_imu)),
+        (FootContacts, contract.FOOT_CONTACTS, _decoding(node, decode_foot_contacts, on_contacts)),
+        (JointState, contract.JOINT_STATES, _decoding(node, JointStateDecoder(), on_joints))], qos)
 
 
 def subscribe_odometry(node, qos, on_odom: Callable[[OdometryView], None]) -> None:

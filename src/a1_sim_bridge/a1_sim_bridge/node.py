@@ -32,6 +32,7 @@ import math
 import threading
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -178,6 +179,9 @@ class SimBridgeNode(Node):
         self._drained_for: float | None = None
         self._command_late = False  # realtime: the newest command was sent after the deadline it was for
         self._taken_raw: bytes | None = None  # the last command handed over in-process (take_command)
+        # Composed with its controller in one process (a1_bringup.control_chain): each step's sensor
+        # messages (IMU, contacts, joint states, as bytes) handed over as they are published.
+        self.sensor_sinks: list[Callable[[bytes, bytes, bytes], None]] = []
         self.get_logger().info(
             f"A1 sim ready: world={self.sim.config.world} clock_mode={self.clock_mode} "
             f"dt={self.sim.config.time_step}s command_timeout={self.watchdog.timeout}s "
@@ -415,6 +419,8 @@ class SimBridgeNode(Node):
                 self._published_at.popitem(last=False)
         self.pub_joints.publish(joints)
         self._published += 1
+        for sink in self.sensor_sinks:  # in this thread: a composed controller's step runs here
+            sink(imu, contacts, joints)
         if self.pub_clock.get_subscription_count() and self.clock_gate.due(stamp_ns):
             self.pub_clock.publish(Clock(clock=cv.stamp_from_ns(stamp_ns)))
         if self.publish_ground_truth or self.recorder is not None:

@@ -151,7 +151,7 @@ class ConvexMpcNode(Node):
             self.create_subscription(Twist, contract.CMD_VEL, self._on_cmd_vel, COMMAND_QOS)
         self.create_subscription(GaitParamsMsg, contract.GAIT_PARAMS, self._on_gait_params, COMMAND_QOS)
         # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_interface.wire).
-        wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints, on_imu=self.trigger.on_imu,
+        self.sensors = wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints, on_imu=self.trigger.on_imu,
                                on_contacts=self.trigger.on_contacts)
         if self.frontend is None:  # /odom as bytes, decoded to a light view (a1_interface.wire)
             wire.subscribe_odometry(self, CONTROL_QOS, self._on_odom)
