@@ -161,9 +161,10 @@ class _Sensors:
         self.on_wire = True
 
     def take(self, imu: bytes, contacts: bytes, joints: bytes) -> None:
-        """(what the bridge hands over)"""
+        """Never called here: connect_chain only wires it to the bridge."""
 
     def leave_wire(self) -> None:
+        """Records that the controller left the sensors' wire copies."""
         self.on_wire = False
 
 
@@ -178,7 +179,7 @@ def _chain(remapped: str = "", sim: bool = True) -> tuple[argparse.Namespace, ar
                                 pub_joints=topic("/joint_states"), subscriptions=[_Topic("/motor_command")],
                                 take_command=lambda raw: None)
     if sim:
-        bridge.sensor_sinks = []
+        bridge.sensor_sinks, bridge.own_thread = [], False
     controller = argparse.Namespace(pub_command=topic("/motor_command"), command_sinks=[], sensors=_Sensors(),
                                     subscriptions=[_Topic(t) for t in (*sensor_topics, "/cmd_vel")])
     return bridge, controller

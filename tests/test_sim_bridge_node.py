@@ -474,6 +474,37 @@ def test_sensors_handed_over_in_process_let_lockstep_run_on_poll_alone(rclpy_con
 
 
 @pytest.mark.ros
+def test_realtime_a_command_handed_over_after_the_next_deadline_counts_as_missed(rclpy_context):
+    """Handed over within the poll that published its sensors, a command's deadline is not settled
+    yet: it is judged when that poll ends. A controller that answers 3 ms after the sensors (the
+    step is 2 ms) misses nearly every deadline; one that answers at once misses few."""
+    overrides = [Parameter("clock_mode", value="realtime")]
+    bridge = SimBridgeNode(own_thread=False, context=rclpy_context, parameter_overrides=overrides)
+    hold = JointCommand.hold(a1())
+    answer_after = [0.0]  # [s]
+
+    def controller(imu: bytes, contacts: bytes, joints: bytes) -> None:
+        time.sleep(answer_after[0])
+        stamp = ns_from_stamp(deserialize_message(joints, JointState).header.stamp)
+        bridge.take_command(serialize_message(motor_command_msg(hold, stamp_from_ns(stamp))))
+
+    def missed_fraction(steps: int) -> float:
+        missed, periods = bridge.deadlines.uncommanded, bridge.deadlines.periods
+        while bridge.deadlines.periods < periods + steps:
+            time.sleep(bridge.poll())
+        return (bridge.deadlines.uncommanded - missed) / (bridge.deadlines.periods - periods)
+
+    bridge.sensor_sinks.append(controller)
+    try:
+        assert missed_fraction(100) < 0.5
+        answer_after[0] = 0.003
+        assert missed_fraction(50) > 0.9
+    finally:
+        bridge.shutdown()
+        bridge.destroy_node()
+
+
+@pytest.mark.ros
 def test_realtime_never_applies_an_older_steps_command_over_a_newer_one(rclpy_context):
     """Realtime takes the newest command whatever its step, but one answering an older step than
     the command in force (a copy delivered late) is stale: the newer one stays."""

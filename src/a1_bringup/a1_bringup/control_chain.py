@@ -10,7 +10,8 @@ hands each command to the bridge (sim or hardware) as it publishes it (``take_co
 step need not wait for the executor to take it back off the wire; and with the sim bridge and the
 estimator embedded in the controller, the bridge hands each step's sensors to the controller as it
 publishes them (``sensor_sinks``), so one call runs physics, sensors, control and command. What another
-process sees on the wire (``ros2 topic echo``) is unchanged.
+process sees on the wire (``ros2 topic echo``) is unchanged; ``ros2 node info`` then lists no sensor
+subscriptions for convex_mpc, since it takes them by hand-off.
 
     control_chain --bridge sim [--estimator] --set sim_bridge.clock_mode=realtime ... \\
         --ros-args --params-file config/a1_sim_bridge.yaml --params-file config/convex_mpc.yaml ...
@@ -155,7 +156,7 @@ def connect_chain(nodes: list[Any], estimator: bool) -> None:
     - The controller hands each command to the bridge as it sends it: in one thread the bridge would
       otherwise take it off the wire only after the controller's work after the command (the filter
       update, /odom) and the executor's next wait.
-    - With the sim bridge and no estimator node (the controller embeds it), the bridge hands each
+    - With the sim bridge stepped in this thread and no estimator node in the chain, the bridge hands each
       step's sensors to the controller as it publishes them, and the controller leaves their wire
       copies: physics, sensors, control and command are one call in one thread, with no executor
       wake-up and intake in between (measured: docs/architecture.md, "The sensors handed over").
@@ -164,7 +165,7 @@ def connect_chain(nodes: list[Any], estimator: bool) -> None:
     bridge, controller = nodes[0], nodes[-1]
     if _wire_links(controller.pub_command, bridge):
         controller.command_sinks.append(bridge.take_command)
-    if (hasattr(bridge, "sensor_sinks") and not estimator
+    if (hasattr(bridge, "sensor_sinks") and not bridge.own_thread and not estimator
             and all(_wire_links(p, controller) for p in (bridge.pub_imu, bridge.pub_contacts, bridge.pub_joints))):
         bridge.sensor_sinks.append(controller.sensors.take)
         controller.sensors.leave_wire()

@@ -387,12 +387,11 @@ def decode_motor_command(buffer: bytes) -> tuple[JointCommand, int]:
             stamp.sec * 1_000_000_000 + stamp.nanosec)
 
 
-
 class SensorIntake:
     """A node's intake of a bridge's three sensor messages as bytes (subscribe_sensors): from its
     subscriptions, or handed over by a bridge in the same process (``take``)."""
 
-    def __init__(self, node, handlers: list[tuple[Any, str, Callable[[bytes], None]]], qos) -> None:
+    def __init__(self, node: Any, handlers: list[tuple[Any, str, Callable[[bytes], None]]], qos: Any) -> None:
         self._node = node
         self._handlers = [handler for _, _, handler in handlers]
         self.subscriptions = [node.create_subscription(msg_type, topic, handler, qos, raw=True)

@@ -12,6 +12,9 @@ In both modes the sim holds its start pose (sensors offered again each step, tim
 the first valid command after start-up or ~/reset. ``start_paused`` starts it paused: after the
 start pose's sensors nothing is stepped or published until ``~/pause`` false (scripts/demo.sh:
 its report unpauses once it has a publisher on every topic it records, so it sees t = 0).
+Composed with its controller (a1_bringup.control_chain, ``own_thread=False``) the bridge takes each
+command as the controller sends it (``take_command``) and hands each step's sensors over as it
+publishes them (``sensor_sinks``); the wire carries the same messages as ever.
 QoS of the 500 Hz topics: RELIABLE, KEEP_LAST 1, VOLATILE (see docs/architecture.md).
 /diagnostics (1 Hz) counts what the robot sees of its controller: ``uncommanded_steps``, steps
 applied with no command accepted since the step before, or (realtime) with one sent after the
@@ -170,6 +173,7 @@ class SimBridgeNode(Node):
         # with them) and the deadline of the step that is to apply that command (system clock [ns]).
         self._published_at: collections.OrderedDict[int, tuple[float, float]] = collections.OrderedDict()
         self.failure: Exception | None = None
+        self.own_thread = own_thread  # False: stepped by poll, in the caller's (the executor's) thread
         self._thread = threading.Thread(target=self._loop, name="sim_loop", daemon=True) if own_thread else None
         self._period = self.sim.config.time_step / self.real_time_factor  # realtime pacing, wall seconds
         self._next_deadline: float | None = None  # poll: monotonic time of the next step (None: not begun)
@@ -178,6 +182,8 @@ class SimBridgeNode(Node):
         # take what was published before stepping (see poll)
         self._drained_for: float | None = None
         self._command_late = False  # realtime: the newest command was sent after the deadline it was for
+        # realtime: (stamp, sent [ns]) of a command handed over before its deadline was settled (_take)
+        self._answered_before_deadline: tuple[int, int] | None = None
         self._taken_raw: bytes | None = None  # the last command handed over in-process (take_command)
         # Composed with its controller in one process (a1_bringup.control_chain): each step's sensor
         # messages (IMU, contacts, joint states, as bytes) handed over as they are published.
@@ -227,7 +233,11 @@ class SimBridgeNode(Node):
                 return
             self.watchdog.accept(valid, self.sim.time)
             self._pending_stamp_ns = stamp_ns
-            if published is not None:  # sent after the step that was to apply it was due?
+            if published is not None and math.isinf(published[1]):
+                # Handed over within the poll that published its sensors (sensor_sinks): the deadline
+                # of the step that applies it is settled when that poll ends (_set_answer_deadline).
+                self._answered_before_deadline = (stamp_ns, sent_ns)
+            elif published is not None:  # sent after the step that was to apply it was due?
                 self._command_late = sent_ns > published[1]
             self._lock.notify_all()
 
@@ -374,9 +384,13 @@ class SimBridgeNode(Node):
         if self.clock_mode != "realtime":  # (a reset in lockstep: no deadline)
             return
         stamp_ns = self.sim.steps * self.dt_ns
+        deadline_ns = time.time_ns() + round((self._next_deadline - now) * 1e9)
         published = self._published_at.get(stamp_ns)
         if published is not None:
-            self._published_at[stamp_ns] = (published[0], time.time_ns() + round((self._next_deadline - now) * 1e9))
+            self._published_at[stamp_ns] = (published[0], deadline_ns)
+        elif self._answered_before_deadline is not None and self._answered_before_deadline[0] == stamp_ns:
+            self._command_late = self._answered_before_deadline[1] > deadline_ns
+        self._answered_before_deadline = None
 
     def _lockstep_ready(self) -> bool:
         """Lockstep wait condition (lock held): this step's command arrived, or stop/reset."""
@@ -392,6 +406,7 @@ class SimBridgeNode(Node):
         self._applied_damping = self._commanded_damping = False
         self._pending_stamp_ns = self._applied_stamp_ns = -1
         self._taken_raw = None
+        self._answered_before_deadline = None
         self._published_at.clear()
         self._lowest_base_height = float("inf")  # a fall before the reset is not this run's
         if self.recorder is not None:
@@ -405,8 +420,9 @@ class SimBridgeNode(Node):
 
     def _publish(self, readings) -> None:
         """This step's messages: the controller's sensors first (the time from the step to the last of
-        them counts against a realtime controller's 2 ms), then /clock and the ground truth, only
-        when someone listens: at 500 Hz every message costs CPU a small computer does not have."""
+        them counts against a realtime controller's 2 ms), handed to ``sensor_sinks`` (composed: the
+        controller's whole step runs here), then /clock and the ground truth, only when someone
+        listens: at 500 Hz every message costs CPU a small computer does not have."""
         stamp_ns = self.sim.steps * self.dt_ns
         joints, imu, contacts = self.encoders.encode(readings, stamp_ns)  # as bytes: see wire.py
         self.pub_imu.publish(imu)

@@ -8,7 +8,8 @@ no /joint_states there is nothing to command: the bridge's own watchdog damps th
 /diagnostics here says the sensors are missing.
 
 Inputs: /cmd_vel (geometry_msgs/Twist, or TwistStamped with ``cmd_vel_stamped``), /gait/params,
-/joint_states, /imu/data, /foot_contacts, /odom; /estop (std_msgs/Bool, true latches damping) and
+/joint_states, /imu/data, /foot_contacts (composed with the sim bridge and the estimator embedded,
+handed over in the process instead: a1_bringup.control_chain), /odom; /estop (std_msgs/Bool, true latches damping) and
 ~/clear_estop (std_srvs/Trigger). Runtime parameters: ``mode`` (stand | walk | damping) and, for
 fault-injection tests, ``inject_qp_failures`` (setting N makes the MPC fail for the next N control steps).
 
@@ -150,9 +151,10 @@ class ConvexMpcNode(Node):
         else:
             self.create_subscription(Twist, contract.CMD_VEL, self._on_cmd_vel, COMMAND_QOS)
         self.create_subscription(GaitParamsMsg, contract.GAIT_PARAMS, self._on_gait_params, COMMAND_QOS)
-        # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_interface.wire).
-        self.sensors = wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints, on_imu=self.trigger.on_imu,
-                               on_contacts=self.trigger.on_contacts)
+        # The 500 Hz sensors arrive as bytes and are decoded to light views (a1_interface.wire); composed
+        # with the sim bridge (a1_bringup.control_chain) it hands them over instead (self.sensors.take).
+        self.sensors = wire.subscribe_sensors(self, CONTROL_QOS, on_joints=self._on_joints,
+                                              on_imu=self.trigger.on_imu, on_contacts=self.trigger.on_contacts)
         if self.frontend is None:  # /odom as bytes, decoded to a light view (a1_interface.wire)
             wire.subscribe_odometry(self, CONTROL_QOS, self._on_odom)
         else:
