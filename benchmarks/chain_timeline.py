@@ -10,7 +10,8 @@ the tail, and this shows the tail: which part of which step ran long.
 
 Prints, over the last ``--window`` seconds of the run:
 - per part: calls, median, p99 and longest duration, and CPU per second of wall time;
-- the wake-up lateness of the sim's steps (start minus deadline);
+- the wake-up lateness of the sim's steps (start minus deadline), and the work a step (its start to
+  the end of its last part: over 2 ms, the next step starts late);
 - late commands: steps whose command reached the bridge (take_command, or the /motor_command
   callback if it is not handed over) after the deadline of the step that applies it, and the
   first ``--show`` of them as timelines from the step before (ms from its start, duration, part);
@@ -61,9 +62,14 @@ def analyse(events: list[tuple[str, float, float]], offset: float, window: float
     receipt = "SimBridgeNode.take_command" if "SimBridgeNode.take_command" in durations else "cb:/motor_command"
     late = []
     started_late: dict[int, float] = {}  # step index: its start minus its deadline [s]
+    idle_before: dict[int, float] = {}  # step index: how long the thread had been idle when it started [s]
+    busy = []  # per step: from its start to the end of the last part that began before the next step [s]
     for k in range(1, len(steps)):
         i, step = steps[k]
         previous_index = steps[k - 1][0]
+        busy_until = max(e[2] for e in events[previous_index:i])
+        idle_before[k] = max(0.0, step[1] - busy_until)
+        busy.append(busy_until - steps[k - 1][1][1])
         deadline = step[0].split(":")[2]
         if deadline == "None":
             continue
@@ -97,11 +103,21 @@ def analyse(events: list[tuple[str, float, float]], offset: float, window: float
               "start, duration, part; gaps are waits):")
         for label, start, stop in events[before:i + 1]:
             print(f"   {(start - origin) * 1e3:8.3f} {(stop - start) * 1e3:7.3f}  {part_of(label)}")
-    woke_late = sum(started_late.get(k - 1, 0.0) > 0.5e-3 for k, *_ in firsts)
-    print(f"of the {len(firsts)} runs, {woke_late} began with a step that started over 0.5 ms after its deadline "
-          "(the thread woke late: the OS, not the step's work)")
+    # A step that starts late either found the thread busy until then (the steps before it ran past
+    # its deadline: the chain's own work) or idle for a while first (its wake-up came late: the OS).
+    started_late_first = [k - 1 for k, *_ in firsts if started_late.get(k - 1, 0.0) > 0.5e-3]
+    woke_late = sum(idle_before.get(k, 0.0) > 0.2e-3 for k in started_late_first)
+    overrun = len(started_late_first) - woke_late
+    work = np.array(busy) * 1e3
+    print(f"of the {len(firsts)} runs, {len(started_late_first)} began with a step that started over 0.5 ms after "
+          f"its deadline: {overrun} because the steps before it were still working (the chain's own work), "
+          f"{woke_late} after the thread had waited over 0.2 ms (a late wake-up: the OS)")
+    print(f"work a step (its start to the end of its last part): median {np.median(work):.3f} ms, p99 "
+          f"{np.percentile(work, 99):.3f} ms; over 2 ms in {100 * np.mean(work > 2.0):.2f} % of steps")
     return {"window_s": window, "steps": len(steps), "late_commands": len(late), "late_runs": len(firsts),
-            "late_runs_after_a_late_wake_up": woke_late,
+            "late_runs_after_a_late_wake_up": woke_late, "late_runs_after_an_overrun": overrun,
+            "step_work_median_s": float(np.median(work)) / 1e3, "step_work_p99_s": float(np.percentile(work, 99)) / 1e3,
+            "step_work_over_2ms_fraction": float(np.mean(work > 2.0)),
             "late_command_fraction": len(late) / max(1, len(steps) - 1),
             "step_start_lateness_p99_s": float(np.percentile(wake, 99)) / 1e3,
             "parts": table}
