@@ -209,6 +209,41 @@ def test_fit_policy_acts_as_the_lag_variant_away_from_the_switch_and_loads_as_a_
     assert "--out must end in .npz" in capsys.readouterr().err
 
 
+def test_fit_policy_table_acts_as_the_gait_schedule_and_a_bad_table_names_its_line(two_policies, tmp_path, capsys):
+    from gait_policy_node.fit_policy import load_gait_table
+    from gait_policy_node.fit_policy import main as fit_main
+
+    _, (a, _) = two_policies
+    table_path = tmp_path / "gaits.csv"
+    # A walk (offsets 180/270/90 deg, short swing) at 0.2 m/s to a flying trot at 2.0 m/s; RR's offset
+    # passes 360 -> 0 on the way, which the interpolation must follow along the shorter arc.
+    table_path.write_text("speed,frequency,swing_ratio,fl_deg,rr_deg,rl_deg\n"
+                          "0.2,1.5,0.2,180,270,90\n2.0,3.0,0.6,180,-180,0\n")
+    table = load_gait_table(str(table_path))
+    middle = table(1.1)
+    assert middle.stepping_frequency == pytest.approx(2.25) and middle.swing_ratio == pytest.approx(0.4)
+    assert np.degrees(middle.phase_offsets[1:]) == pytest.approx([180.0, 225.0, 45.0])
+    assert table(-3.0) == table(2.0)  # held beyond the last row, by |commanded speed|
+    out = tmp_path / "scheduled.npz"
+    assert fit_main([str(a), "--table", str(table_path), "--out", str(out), "--samples", "4000"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    fitted = load_policy(out)[0]
+    for speed in (0.3, 1.1, 1.9):
+        got, want = fitted(np.array([speed, speed, 0.0, 0.0])), table(speed)
+        assert got.stepping_frequency == pytest.approx(want.stepping_frequency, abs=0.2)
+        assert np.allclose(np.cos(np.subtract(got.phase_offsets, want.phase_offsets)), 1.0,
+                           atol=1 - np.cos(np.radians(15)))
+    assert report["all_max_offset_error_deg"] >= 0.0
+    table_path.write_text("speed,frequency,swing_ratio,fl_deg,rr_deg,rl_deg\n1.0,2,0.5,180,180,0\n0.5,2,1.5,0,0,0\n")
+    assert fit_main([str(a), "--table", str(table_path), "--out", str(out)]) == 2
+    assert "line 3" in capsys.readouterr().err
+    table_path.write_text("speed,frequency,swing_ratio,fl_deg,rr_deg,rl_deg\n1.0,2,0.5,180,180,0\n0.5,2,0.5,0,0,0\n")
+    assert fit_main([str(a), "--table", str(table_path), "--out", str(out)]) == 2
+    assert "speed must increase" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # one target or the other
+        fit_main([str(a), "--table", str(table_path), "--lag", "-30", "--out", str(out)])
+
+
 @pytest.mark.parametrize("saturated", [False, True])
 @pytest.mark.parametrize("timing_prior", [(), (1.5, 0.3)])
 def test_encode_action_is_decode_actions_inverse_within_its_limit(saturated, timing_prior):

@@ -1,6 +1,7 @@
-"""fit_policy: a policy network refitted to act as compare_policies' low-speed lag variant of it.
+"""fit_policy: a policy network refitted to act as compare_policies' low-speed lag variant of it, or as a gait table.
 
     fit_policy POLICY --lag DEG [--below V] [--timing BEST.csv ...] --out NEW.npz [--samples N] [--seed S]
+    fit_policy POLICY --table GAITS.csv --out NEW.npz [--samples N] [--seed S]
 
 Why: CMA-ES moves a policy in small steps from where it stands. To ask whether it keeps a gait it
 has not found itself (a four-beat walk at low speed), a run has to start from a policy that walks.
@@ -11,16 +12,25 @@ above, its own action. Observations are drawn around the diagonal the episodes v
 speed near the command). The result is an ordinary policy file with POLICY's training config:
 ``compare_policies`` evaluates it, ``train_es --init-from NEW.npz`` starts a run there. Prints how
 closely the fit acts like its target, and ends with one JSON line of those figures.
+
+``--table`` fits the whole policy to a gait schedule by commanded speed instead: a CSV with the
+columns ``speed`` [m/s], ``frequency`` [Hz], ``swing_ratio``, ``fl_deg``, ``rr_deg``, ``rl_deg``
+(phase offsets of FL, RR and RL from FR [deg]), one row per speed, speeds increasing; between rows
+the gait is interpolated (offsets along the shorter arc), beyond them held. So a published gait
+schedule (the reference checkpoint's, docs/results/reference_gaits/) becomes a policy that every
+tool runs and that a training run can start from.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import sys
+from dataclasses import dataclass
 
 import numpy as np
-from a1_common.config import ConfigError
+from a1_common.config import ConfigError, require_range
 from convex_mpc_node.gait import GaitParams
 
 from gait_policy_node.compare_policies import load_timing, with_lag
@@ -30,6 +40,56 @@ from gait_policy_node.train_config import ProfileConfig
 
 RIDGE = 1e-4  # output-layer least squares regulariser (hidden features are O(1))
 MAX_TARGET = 0.98  # targets clipped into the tanh's range before its inverse
+TABLE_COLUMNS = ("speed", "frequency", "swing_ratio", "fl_deg", "rr_deg", "rl_deg")
+
+
+@dataclass(frozen=True)
+class GaitTable:
+    """A gait against commanded forward speed: speeds [m/s] increasing, stepping frequency [Hz],
+    swing ratio, and the FL, RR, RL phase offsets from FR [rad] unwrapped along the rows, so that
+    interpolating them follows the shorter arc between neighbouring rows."""
+
+    speeds: np.ndarray
+    frequencies: np.ndarray
+    swing_ratios: np.ndarray
+    offsets: np.ndarray  # (rows, 3)
+
+    def __call__(self, speed: float) -> GaitParams:
+        """The gait at commanded speed |``speed``| [m/s]: linear between rows, the end rows beyond them."""
+        v = abs(float(speed))
+        offsets = [float(np.interp(v, self.speeds, column) % (2 * np.pi)) for column in self.offsets.T]
+        return GaitParams(float(np.interp(v, self.speeds, self.frequencies)),
+                          float(np.interp(v, self.speeds, self.swing_ratios)), (0.0, *offsets))
+
+
+def load_gait_table(path: str) -> GaitTable:
+    """A GaitTable from a CSV of TABLE_COLUMNS; ConfigError naming the file, row and field."""
+    rows = []
+    try:
+        with open(path, newline="", encoding="utf-8") as handle:
+            reader = csv.DictReader(handle)
+            missing = [c for c in TABLE_COLUMNS if c not in (reader.fieldnames or [])]
+            if missing:
+                raise ConfigError(f"--table {path}: missing column(s) {missing}; needs {list(TABLE_COLUMNS)}")
+            for number, row in enumerate(reader, start=2):
+                try:
+                    values = [float(row[c]) for c in TABLE_COLUMNS]
+                except (TypeError, ValueError):
+                    raise ConfigError(f"--table {path}, line {number}: every field must be a number") from None
+                try:
+                    require_range("speed", values[0], 0.0, 5.0)
+                    GaitParams(values[1], values[2], (0.0, *np.radians(values[3:]) % (2 * np.pi))).validated()
+                except ValueError as exc:
+                    raise ConfigError(f"--table {path}, line {number}: {exc}") from None
+                rows.append(values)
+    except OSError as exc:
+        raise ConfigError(f"--table {path}: {exc.strerror}") from None
+    if not rows:
+        raise ConfigError(f"--table {path}: no rows")
+    table = np.array(rows)
+    if np.any(np.diff(table[:, 0]) <= 0):
+        raise ConfigError(f"--table {path}: speed must increase from row to row, got {table[:, 0].tolist()}")
+    return GaitTable(table[:, 0], table[:, 1], table[:, 2], np.unwrap(np.radians(table[:, 3:]), axis=0))
 
 
 def sample_observations(count: int, top_speed: float, seed: int) -> np.ndarray:
@@ -78,19 +138,26 @@ def lag_targets(policy: NetworkPolicy, observations: np.ndarray, lag_deg: float,
     return np.array(rows)
 
 
+def table_targets(policy: NetworkPolicy, observations: np.ndarray, table: GaitTable) -> np.ndarray:
+    """Network outputs that decode to ``table``'s gait at each observation's commanded speed."""
+    return np.array([encode_action(table(obs[0]), policy.action, policy.raw_action(obs), MAX_TARGET)
+                     for obs in observations])
+
+
 def _offset_error_deg(a: GaitParams, b: GaitParams) -> float:
     return float(np.degrees(np.max(np.abs(shortest_arc(b.phase_offsets, a.phase_offsets)))))
 
 
-def fit_report(fitted: NetworkPolicy, target, observations: np.ndarray, below: float) -> dict[str, float]:
-    """Worst differences of the fitted policy's gait from the target's, away from the switch speed
-    (within 0.15 m/s of ``below`` the fit blends the two by construction)."""
-    rows = {"below": [], "above": []}
+def fit_report(fitted: NetworkPolicy, target, observations: np.ndarray, below: float | None) -> dict[str, float]:
+    """Worst differences of the fitted policy's gait from the target's, below and above the switch
+    speed ``below`` and away from it (within 0.15 m/s of it the fit blends the two by construction);
+    with no switch (a gait table), at all speeds."""
+    rows = {"below": [], "above": []} if below is not None else {"all": []}
     for obs in observations:
-        if abs(abs(obs[0]) - below) < 0.15:
+        if below is not None and abs(abs(obs[0]) - below) < 0.15:
             continue
         got, want = fitted(obs), target(obs)
-        rows["below" if abs(obs[0]) < below else "above"].append(
+        rows["all" if below is None else "below" if abs(obs[0]) < below else "above"].append(
             (abs(got.stepping_frequency - want.stepping_frequency), abs(got.swing_ratio - want.swing_ratio),
              _offset_error_deg(got, want)))
     report = {}
@@ -105,7 +172,10 @@ def fit_report(fitted: NetworkPolicy, target, observations: np.ndarray, below: f
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="fit_policy", description=__doc__.split("\n")[0])
     parser.add_argument("policy", metavar="POLICY", help="policy .npz (an mlp) or 'learned'")
-    parser.add_argument("--lag", type=float, required=True, help="diagonal lag [deg] below --below (lag family)")
+    target = parser.add_mutually_exclusive_group(required=True)
+    target.add_argument("--lag", type=float, help="diagonal lag [deg] below --below (lag family)")
+    target.add_argument("--table", metavar="GAITS_CSV",
+                        help="a gait schedule by commanded speed (columns: " + ", ".join(TABLE_COLUMNS) + ")")
     parser.add_argument("--below", type=float, default=1.25, help="commanded speed [m/s] under which the lag applies")
     parser.add_argument("--timing", nargs="+", default=[], metavar="BEST_CSV",
                         help="sweep_gaits best.csv files: f and p_swing below --below from them")
@@ -118,7 +188,7 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = _parse_args(argv)
     try:
-        if not -180.0 <= args.lag <= 180.0:
+        if args.lag is not None and not -180.0 <= args.lag <= 180.0:
             raise ConfigError(f"--lag must be in [-180, 180] deg, got {args.lag}")
         if args.seed < 0:
             raise ConfigError(f"--seed must be >= 0, got {args.seed}")
@@ -128,27 +198,41 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f"--samples must be in [100, 1000000], got {args.samples}")
         if not args.out.endswith(".npz"):
             raise ConfigError(f"--out must end in .npz, got {args.out}")
+        if args.table is not None and args.timing:
+            raise ConfigError("--timing applies to --lag only (a --table gives f and p_swing itself)")
+        table = load_gait_table(args.table) if args.table is not None else None
         timing = load_timing(args.timing, args.lag) if args.timing else None
         policy, config = load_policy(args.policy)
         if config.env.observation != "basic":
             raise ConfigError(f"fit_policy draws basic observations; this policy's is {config.env.observation}")
         top = profile_top_speed(config.env.profile) + 0.3
         observations = sample_observations(args.samples, top, args.seed)
-        fitted = fit_output_layer(policy, observations, lag_targets(policy, observations, args.lag, args.below, timing))
-        check = sample_observations(2000, top, args.seed + 1)
-        report = fit_report(fitted, with_lag(policy, args.lag, args.below, timing), check, args.below)
+        if table is not None:
+            switch, target = None, (lambda obs: table(obs[0]))
+            targets = table_targets(policy, observations, table)
+        else:
+            switch, target = args.below, with_lag(policy, args.lag, args.below, timing)
+            targets = lag_targets(policy, observations, args.lag, args.below, timing)
+        fitted = fit_output_layer(policy, observations, targets)
+        report = fit_report(fitted, target, sample_observations(2000, top, args.seed + 1), switch)
         save_policy(args.out, fitted, config)
     except (ConfigError, OSError) as exc:
         print(f"fit_policy: {exc}", file=sys.stderr)
         return 2
-    print(f"fit_policy: wrote {args.out}: lag {args.lag:+g} deg below {args.below:g} m/s"
-          f"{' with the swept timing' if timing else ''}; worst differences from the target on 2000 other "
-          "observations (more than 0.15 m/s from the switch):")
-    for side in ("below", "above"):
+    if table is not None:
+        print(f"fit_policy: wrote {args.out}: the gait table {args.table}; worst differences from it on 2000 "
+              "other observations:")
+        figures = {"out": args.out, "table": args.table}
+    else:
+        print(f"fit_policy: wrote {args.out}: lag {args.lag:+g} deg below {args.below:g} m/s"
+              f"{' with the swept timing' if timing else ''}; worst differences from the target on 2000 other "
+              "observations (more than 0.15 m/s from the switch):")
+        figures = {"out": args.out, "lag_deg": args.lag, "below_mps": args.below}
+    for side in ("below", "above") if table is None else ("all",):
         print(f"  {side:5s}: f {report[f'{side}_max_frequency_error_hz']:.3f} Hz, "
               f"p_swing {report[f'{side}_max_swing_ratio_error']:.3f}, "
               f"offsets {report[f'{side}_max_offset_error_deg']:.1f} deg")
-    print(json.dumps({"out": args.out, "lag_deg": args.lag, "below_mps": args.below, **report}))
+    print(json.dumps({**figures, **report}))
     return 0
 
 
