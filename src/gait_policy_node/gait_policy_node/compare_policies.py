@@ -337,7 +337,8 @@ def summary(stats: list[EpisodeStats]) -> dict[str, float]:
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="compare_policies", description=__doc__.split("\n")[0])
     parser.add_argument("policies", nargs="+", metavar="POLICY",
-                        help="learned | policy .npz | scheduled | walk | slow_trot | rapid_trot | fly_trot")
+                        help="learned | policy .npz | gait table .csv | scheduled | walk | slow_trot | rapid_trot "
+                        "| fly_trot")
     parser.add_argument("--config", help="training config whose env and reward every policy is run on "
                                          "(default: the first policy file's own, else config/train_es.yaml)")
     parser.add_argument("--seeds", type=int, default=8, help="episodes per policy (default 8)")

@@ -5,9 +5,10 @@
                 [--stack-conditions] [--out DIR] [--format csv|npz]
 
 POLICY is ``learned`` (the trained policy this package ships), a policy file from train_es (.npz),
-``scheduled`` (the hand-tuned gaits by speed) or a hand-tuned gait name (walk, slow_trot,
-rapid_trot, fly_trot). The run uses the policy file's training config (observation, reward,
-controller inputs) or, for hand-tuned gaits, config/train_es.yaml; the options above replace its
+a gait table (.csv, the gait against commanded speed: policy.GaitTable), ``scheduled`` (the
+hand-tuned gaits by speed) or a hand-tuned gait name (walk, slow_trot, rapid_trot, fly_trot). The
+run uses the policy file's training config (observation, reward, controller inputs) or, for the
+others, config/train_es.yaml; the options above replace its
 profile and world. ``--stack-conditions`` runs a policy trained in other conditions (e.g. the
 reference's friction) where the stack runs it: the sim bridge's ground friction and the deployed
 controller (config/convex_mpc.yaml alone). Writes per control step data (steps.csv or steps.npz), the gait diagram
@@ -100,7 +101,8 @@ def write_steps(path: Path, data: dict[str, np.ndarray]) -> None:
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="eval_policy", description=__doc__.split("\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("policy", help="learned | policy .npz | scheduled | walk | slow_trot | rapid_trot | fly_trot")
+    parser.add_argument("policy", help="learned | policy .npz | gait table .csv | scheduled | walk | slow_trot "
+                                       "| rapid_trot | fly_trot")
     parser.add_argument("--profile", choices=("ramp", "constant", "steps", "random"))
     parser.add_argument("--speed", type=float, help="constant profile speed [m/s]")
     parser.add_argument("--target-speed", type=float, help="ramp end speed [m/s]")

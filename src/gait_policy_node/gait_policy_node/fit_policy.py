@@ -17,79 +17,30 @@ closely the fit acts like its target, and ends with one JSON line of those figur
 columns ``speed`` [m/s], ``frequency`` [Hz], ``swing_ratio``, ``fl_deg``, ``rr_deg``, ``rl_deg``
 (phase offsets of FL, RR and RL from FR [deg]), one row per speed, speeds increasing; between rows
 the gait is interpolated (offsets along the shorter arc), beyond them held. So a published gait
-schedule (the reference checkpoint's, docs/results/reference_gaits/) becomes a policy that every
-tool runs and that a training run can start from.
+schedule (the reference checkpoint's, docs/results/reference_gaits/) becomes a network that a
+training run can start from (``eval_policy`` and ``compare_policies`` run the CSV itself too:
+policy.GaitTable).
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
-from dataclasses import dataclass
+from collections.abc import Callable
 
 import numpy as np
-from a1_common.config import ConfigError, require_range
+from a1_common.config import ConfigError
 from convex_mpc_node.gait import GaitParams
 
 from gait_policy_node.compare_policies import load_timing, with_lag
 from gait_policy_node.gait_analysis import shortest_arc
 from gait_policy_node.learned_policy import ACTION_SIZE, NetworkPolicy, encode_action, load_policy, save_policy
+from gait_policy_node.policy import TABLE_COLUMNS, GaitTable
 from gait_policy_node.train_config import ProfileConfig
 
 RIDGE = 1e-4  # output-layer least squares regulariser (hidden features are O(1))
 MAX_TARGET = 0.98  # targets clipped into the tanh's range before its inverse
-TABLE_COLUMNS = ("speed", "frequency", "swing_ratio", "fl_deg", "rr_deg", "rl_deg")
-
-
-@dataclass(frozen=True)
-class GaitTable:
-    """A gait against commanded forward speed: speeds [m/s] increasing, stepping frequency [Hz],
-    swing ratio, and the FL, RR, RL phase offsets from FR [rad] unwrapped along the rows, so that
-    interpolating them follows the shorter arc between neighbouring rows."""
-
-    speeds: np.ndarray
-    frequencies: np.ndarray
-    swing_ratios: np.ndarray
-    offsets: np.ndarray  # (rows, 3)
-
-    def __call__(self, speed: float) -> GaitParams:
-        """The gait at commanded speed |``speed``| [m/s]: linear between rows, the end rows beyond them."""
-        v = abs(float(speed))
-        offsets = [float(np.interp(v, self.speeds, column) % (2 * np.pi)) for column in self.offsets.T]
-        return GaitParams(float(np.interp(v, self.speeds, self.frequencies)),
-                          float(np.interp(v, self.speeds, self.swing_ratios)), (0.0, *offsets))
-
-
-def load_gait_table(path: str) -> GaitTable:
-    """A GaitTable from a CSV of TABLE_COLUMNS; ConfigError naming the file, row and field."""
-    rows = []
-    try:
-        with open(path, newline="", encoding="utf-8") as handle:
-            reader = csv.DictReader(handle)
-            missing = [c for c in TABLE_COLUMNS if c not in (reader.fieldnames or [])]
-            if missing:
-                raise ConfigError(f"--table {path}: missing column(s) {missing}; needs {list(TABLE_COLUMNS)}")
-            for number, row in enumerate(reader, start=2):
-                try:
-                    values = [float(row[c]) for c in TABLE_COLUMNS]
-                except (TypeError, ValueError):
-                    raise ConfigError(f"--table {path}, line {number}: every field must be a number") from None
-                try:
-                    require_range("speed", values[0], 0.0, 5.0)
-                    GaitParams(values[1], values[2], (0.0, *np.radians(values[3:]) % (2 * np.pi))).validated()
-                except ValueError as exc:
-                    raise ConfigError(f"--table {path}, line {number}: {exc}") from None
-                rows.append(values)
-    except OSError as exc:
-        raise ConfigError(f"--table {path}: {exc.strerror}") from None
-    if not rows:
-        raise ConfigError(f"--table {path}: no rows")
-    table = np.array(rows)
-    if np.any(np.diff(table[:, 0]) <= 0):
-        raise ConfigError(f"--table {path}: speed must increase from row to row, got {table[:, 0].tolist()}")
-    return GaitTable(table[:, 0], table[:, 1], table[:, 2], np.unwrap(np.radians(table[:, 3:]), axis=0))
 
 
 def sample_observations(count: int, top_speed: float, seed: int) -> np.ndarray:
@@ -140,15 +91,26 @@ def lag_targets(policy: NetworkPolicy, observations: np.ndarray, lag_deg: float,
 
 def table_targets(policy: NetworkPolicy, observations: np.ndarray, table: GaitTable) -> np.ndarray:
     """Network outputs that decode to ``table``'s gait at each observation's commanded speed."""
-    return np.array([encode_action(table(obs[0]), policy.action, policy.raw_action(obs), MAX_TARGET)
+    return np.array([encode_action(table.gait(obs[0]), policy.action, policy.raw_action(obs), MAX_TARGET)
                      for obs in observations])
+
+
+def _require_within_action(table: GaitTable, policy: NetworkPolicy) -> None:
+    """ConfigError if the table asks for a frequency or swing ratio the policy's outputs cannot
+    decode to (they would be clipped: the fit would not act like the table)."""
+    for name, values, (low, high) in (("frequency", table.frequencies, policy.action.frequency_range),
+                                      ("swing_ratio", table.swing_ratios, policy.action.swing_ratio_range)):
+        if values.min() < low or values.max() > high:
+            raise ConfigError(f"--table {table.path}: {name} must be within the policy's range [{low:g}, {high:g}], "
+                              f"got {values.min():g}-{values.max():g}")
 
 
 def _offset_error_deg(a: GaitParams, b: GaitParams) -> float:
     return float(np.degrees(np.max(np.abs(shortest_arc(b.phase_offsets, a.phase_offsets)))))
 
 
-def fit_report(fitted: NetworkPolicy, target, observations: np.ndarray, below: float | None) -> dict[str, float]:
+def fit_report(fitted: NetworkPolicy, target: Callable[[np.ndarray], GaitParams], observations: np.ndarray,
+               below: float | None) -> dict[str, float]:
     """Worst differences of the fitted policy's gait from the target's, below and above the switch
     speed ``below`` and away from it (within 0.15 m/s of it the fit blends the two by construction);
     with no switch (a gait table), at all speeds."""
@@ -176,7 +138,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     target.add_argument("--lag", type=float, help="diagonal lag [deg] below --below (lag family)")
     target.add_argument("--table", metavar="GAITS_CSV",
                         help="a gait schedule by commanded speed (columns: " + ", ".join(TABLE_COLUMNS) + ")")
-    parser.add_argument("--below", type=float, default=1.25, help="commanded speed [m/s] under which the lag applies")
+    parser.add_argument("--below", type=float, default=None,
+                        help="commanded speed [m/s] under which the lag applies (default 1.25; --lag only)")
     parser.add_argument("--timing", nargs="+", default=[], metavar="BEST_CSV",
                         help="sweep_gaits best.csv files: f and p_swing below --below from them")
     parser.add_argument("--out", required=True, help="the new policy file (.npz)")
@@ -192,15 +155,17 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f"--lag must be in [-180, 180] deg, got {args.lag}")
         if args.seed < 0:
             raise ConfigError(f"--seed must be >= 0, got {args.seed}")
+        if args.table is not None and (args.timing or args.below is not None):
+            raise ConfigError("--timing and --below apply to --lag only (a --table gives the gait at every speed)")
+        if args.below is None:
+            args.below = 1.25
         if not 0.0 < args.below <= 5.0:
             raise ConfigError(f"--below must be in (0, 5] m/s, got {args.below}")
         if not 100 <= args.samples <= 1_000_000:
             raise ConfigError(f"--samples must be in [100, 1000000], got {args.samples}")
         if not args.out.endswith(".npz"):
             raise ConfigError(f"--out must end in .npz, got {args.out}")
-        if args.table is not None and args.timing:
-            raise ConfigError("--timing applies to --lag only (a --table gives f and p_swing itself)")
-        table = load_gait_table(args.table) if args.table is not None else None
+        table = GaitTable(args.table) if args.table is not None else None
         timing = load_timing(args.timing, args.lag) if args.timing else None
         policy, config = load_policy(args.policy)
         if config.env.observation != "basic":
@@ -208,7 +173,8 @@ def main(argv: list[str] | None = None) -> int:
         top = profile_top_speed(config.env.profile) + 0.3
         observations = sample_observations(args.samples, top, args.seed)
         if table is not None:
-            switch, target = None, (lambda obs: table(obs[0]))
+            _require_within_action(table, policy)
+            switch, target = None, (lambda obs: table.gait(obs[0]))
             targets = table_targets(policy, observations, table)
         else:
             switch, target = args.below, with_lag(policy, args.lag, args.below, timing)

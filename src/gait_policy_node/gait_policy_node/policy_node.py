@@ -1,8 +1,9 @@
 """gait_policy node: the 20 Hz gait policy. /cmd_vel and /odom in, /gait/params out.
 
 The policy comes from the ``policy`` parameter (see policy.make_policy): ``learned`` (the trained
-policy shipped with this package, the default), a learned policy file (.npz from train_es), the
-hand-tuned gaits scheduled by speed (``scheduled``), or one hand-tuned gait by name.
+policy shipped with this package, the default), a learned policy file (.npz from train_es), a gait
+table (.csv: the gait against commanded speed), the hand-tuned gaits scheduled by speed
+(``scheduled``), or one hand-tuned gait by name.
 The desired velocity the policy sees is /cmd_vel as the controller tracks it (a1_common.command's
 CommandShaper with the controller's ``max_acceleration``, ``cmd_vel_timeout`` and /cmd_vel clamp
 ``max_forward_speed`` / ``max_lateral_speed``, as set in config/convex_mpc.yaml): the policy was
@@ -50,7 +51,7 @@ from gait_policy_node.policy import make_policy
 @dataclass(frozen=True)
 class NodeParameters:
     policy: str = setting(SHIPPED_POLICY, "learned (the shipped trained policy) | a policy .npz from train_es | "
-                                          "scheduled | walk | slow_trot | rapid_trot | fly_trot")
+                                          "a gait table .csv | scheduled | walk | slow_trot | rapid_trot | fly_trot")
     rate: float = setting(20.0, "policy rate, /gait/params per second [Hz]")
     cmd_vel_stamped: bool = setting(False, "read /cmd_vel as geometry_msgs/TwistStamped instead of Twist")
 
