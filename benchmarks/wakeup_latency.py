@@ -1,8 +1,9 @@
 """How late this machine's OS wakes a thread that sleeps to a 2 ms deadline, with no ROS at all.
 
-The composed chain's missed deadlines mostly begin with a sim step that woke late
-(``benchmarks/chain_timeline.py``), and their share differs between instances of the same machine
-type with the same code. This probe separates the OS (and the hypervisor under it) from the stack:
+The composed chain's missed deadlines begin with a sim step that started late
+(``benchmarks/chain_timeline.py``): its thread woke late, or the steps before it overran. Their
+share differs between instances of the same machine type with the same code. This probe separates
+the OS and the CPU the hypervisor gives this process from the stack:
 one thread sleeps to absolute deadlines every ``--period-ms`` (the sim bridge's step), at
 SCHED_FIFO ``--fifo`` when permitted (the realtime bring-up's scheduling), and records how late each
 wake-up was. ``--busy N`` starts N processes that spin at normal priority, as the chain's other work
