@@ -41,6 +41,7 @@ from gait_policy_node.train_config import ProfileConfig
 
 RIDGE = 1e-4  # output-layer least squares regulariser (hidden features are O(1))
 MAX_TARGET = 0.98  # targets clipped into the tanh's range before its inverse
+DEFAULT_BELOW = 1.25  # [m/s] --lag's switch speed when --below is not given
 
 
 def sample_observations(count: int, top_speed: float, seed: int) -> np.ndarray:
@@ -139,7 +140,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     target.add_argument("--table", metavar="GAITS_CSV",
                         help="a gait schedule by commanded speed (columns: " + ", ".join(TABLE_COLUMNS) + ")")
     parser.add_argument("--below", type=float, default=None,
-                        help="commanded speed [m/s] under which the lag applies (default 1.25; --lag only)")
+                        help=f"commanded speed [m/s] under which the lag applies (default {DEFAULT_BELOW:g}; "
+                             "--lag only)")
     parser.add_argument("--timing", nargs="+", default=[], metavar="BEST_CSV",
                         help="sweep_gaits best.csv files: f and p_swing below --below from them")
     parser.add_argument("--out", required=True, help="the new policy file (.npz)")
@@ -158,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.table is not None and (args.timing or args.below is not None):
             raise ConfigError("--timing and --below apply to --lag only (a --table gives the gait at every speed)")
         if args.below is None:
-            args.below = 1.25
+            args.below = DEFAULT_BELOW
         if not 0.0 < args.below <= 5.0:
             raise ConfigError(f"--below must be in (0, 5] m/s, got {args.below}")
         if not 100 <= args.samples <= 1_000_000:

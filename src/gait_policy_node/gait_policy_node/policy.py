@@ -45,11 +45,12 @@ class SpeedScheduledGaits:
 
 
 TABLE_COLUMNS = ("speed", "frequency", "swing_ratio", "fl_deg", "rr_deg", "rl_deg")
-# Each column's allowed range: commanded speed [m/s], stepping frequency [Hz], swing ratio, phase
-# offsets of FL, RR, RL from FR [deg] (any turn: the table's rows are joined along the shorter arc).
-_TABLE_RANGES = {"speed": (0.0, 5.0), "frequency": (0.0, MAX_FREQUENCY), "swing_ratio": (0.0, 1.0),
-                 "fl_deg": (-360.0, 360.0), "rr_deg": (-360.0, 360.0), "rl_deg": (-360.0, 360.0)}
-_OPEN_LOW = ("frequency", "swing_ratio")  # 0 Hz and a swing ratio of 0 are no gait
+# Each column's allowed range (low, high, low open, high open): commanded speed [m/s], stepping
+# frequency [Hz] and swing ratio (0 is no gait), phase offsets of FL, RR, RL from FR [deg] (any
+# turn: the table's rows are joined along the shorter arc).
+_TABLE_RANGES = {"speed": (0.0, 5.0, False, False), "frequency": (0.0, MAX_FREQUENCY, True, False),
+                 "swing_ratio": (0.0, 1.0, True, True), "fl_deg": (-360.0, 360.0, False, False),
+                 "rr_deg": (-360.0, 360.0, False, False), "rl_deg": (-360.0, 360.0, False, False)}
 
 
 class GaitTable:
@@ -96,10 +97,9 @@ def _read_table(path: str) -> np.ndarray:
                         value: float | str = float(text)
                     except ValueError:
                         value = text  # require_range names it as not a number
-                    low, high = _TABLE_RANGES[column]
+                    low, high, low_open, high_open = _TABLE_RANGES[column]
                     try:
-                        values.append(require_range(column, value, low, high, low_open=column in _OPEN_LOW,
-                                                    high_open=column == "swing_ratio"))
+                        values.append(require_range(column, value, low, high, low_open=low_open, high_open=high_open))
                     except ConfigError as exc:
                         raise ConfigError(f"{where}: {exc}") from None
                 rows.append(values)
