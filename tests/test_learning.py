@@ -266,9 +266,10 @@ def test_env_controller_overrides_reach_the_episodes_controller():
 
 def test_eval_policy_runs_a_policy_trained_elsewhere_in_the_stacks_conditions():
     trained = load_train_config(overrides=["env.ground_friction=0.25", "env.controller={mpc_friction_coefficient: 0.2}",
-                                           "env.profile.acceleration=0.5"])
+                                           "env.profile.acceleration=0.5", "env.payload_mass=3.77"])
     stack = in_stack_conditions(trained)
-    assert (stack.env.ground_friction, stack.env.controller) == (SimConfig().ground_friction, {})
+    assert (stack.env.ground_friction, stack.env.payload_mass, stack.env.controller) == \
+        (SimConfig().ground_friction, SimConfig().payload_mass, {})
     assert stack.env.controller_config() == load_controller_config()
     assert stack.env.profile == trained.env.profile and stack.policy == trained.policy  # nothing else changes
 

@@ -51,6 +51,19 @@ def test_sensors_at_rest(sim):
     np.testing.assert_allclose(r.joint_position, sim.robot.nominal_joint_angles, atol=0.08)
     assert sim.time == pytest.approx(0.5)
 
+def test_payload_adds_its_weight_to_the_feet():
+    loaded = A1Sim(SimConfig(payload_mass=3.77))
+    try:
+        run_hold(loaded, 0.5)
+        weight = (loaded.robot.urdf_total_mass + 3.77) * loaded.robot.gravity
+        assert loaded.sensors().foot_force.sum() == pytest.approx(weight, rel=0.05)
+        loaded.reset()  # the world is rebuilt: the payload must be there once, not twice
+        run_hold(loaded, 0.5)
+        assert loaded.sensors().foot_force.sum() == pytest.approx(weight, rel=0.05)
+    finally:
+        loaded.close()
+
+
 
 def test_reported_torque_is_the_clipped_applied_torque(sim):
     sim.reset()
@@ -239,6 +252,7 @@ def test_per_sensor_latency_delays_readings():
         ({"noise": SensorNoise(gyro_noise=-1.0)}, "gyro_noise"),
         ({"noise": SensorNoise(imu_latency=0.003)}, "multiple of time_step"),
         ({"world": "slope", "slope_angle": -0.1}, "slope_angle"),
+        ({"payload_mass": -1.0}, "payload_mass"),
     ],
 )
 def test_bad_sim_config_names_the_field(changes, match):

@@ -67,6 +67,8 @@ class SimConfig:
     rough_amplitude: float = setting(0.04, "'rough' world: largest terrain height [m]")
     slope_angle: float = setting(0.1, "'slope' world: incline, uphill along +x [rad]")
     settle_time: float = setting(1.0, "on reset: joint PD hold that settles the robot [s]")
+    payload_mass: float = setting(0.0, "mass added to the trunk at its centre of mass [kg] (the reference "
+                                       "simulates a 16.2 kg A1: 3.77)")
     noise: SensorNoise = field(default_factory=SensorNoise)
 
     def validated(self) -> SimConfig:
@@ -81,6 +83,7 @@ class SimConfig:
         require_range("rough_amplitude", self.rough_amplitude, 0.0, 0.2, low_open=True)
         require_range("slope_angle", self.slope_angle, 0.0, 0.5, low_open=True)  # uphill ramp
         require_range("settle_time", self.settle_time, 0.0, 10.0)
+        require_range("payload_mass", self.payload_mass, 0.0, 10.0)
         for f in dataclasses.fields(self.noise):
             value = getattr(self.noise, f.name)
             high = 1.0 if f.name.endswith("_latency") else 10.0
@@ -154,6 +157,9 @@ class A1Sim:
                                     forces=[0.0] * len(self._joint_ids))
         for foot in self._foot_ids:
             p.changeDynamics(self._body, foot, lateralFriction=FOOT_LINK_FRICTION)
+        if cfg.payload_mass > 0.0:  # Bullet scales the trunk's inertia with its mass (same box)
+            trunk_mass = p.getDynamicsInfo(self._body, -1)[0]
+            p.changeDynamics(self._body, -1, mass=trunk_mass + cfg.payload_mass)
         for jid, q in zip(self._joint_ids, self.robot.nominal_joint_angles, strict=True):
             p.resetJointState(self._body, jid, q, 0.0)
         p.configureDebugVisualizer(p.COV_ENABLE_RENDERING, 1)

@@ -102,7 +102,8 @@ class GaitEnv:
         self.reward_config = (reward or RewardConfig()).validated()
         self.controller_config = controller_config or self.config.controller_config()
         self.estimator_config = estimator_config or load_estimator_config()
-        self.sim = A1Sim(SimConfig(world=self.config.world, ground_friction=self.config.ground_friction))
+        self.sim = A1Sim(SimConfig(world=self.config.world, ground_friction=self.config.ground_friction,
+                                   payload_mass=self.config.payload_mass))
         self._placeholder_gait = load_hand_tuned_gaits()["slow_trot"]
         self.loop: ClosedLoop | None = None
         self.record: ControlRecord | None = None

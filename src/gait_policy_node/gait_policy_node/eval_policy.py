@@ -10,7 +10,7 @@ hand-tuned gaits by speed) or a hand-tuned gait name (walk, slow_trot, rapid_tro
 run uses the policy file's training config (observation, reward, controller inputs) or, for the
 others, config/train_es.yaml; the options above replace its
 profile and world. ``--stack-conditions`` runs a policy trained in other conditions (e.g. the
-reference's friction) where the stack runs it: the sim bridge's ground friction and the deployed
+reference's friction) where the stack runs it: the sim bridge's ground friction and payload and the deployed
 controller (config/convex_mpc.yaml alone). Writes per control step data (steps.csv or steps.npz), the gait diagram
 (gait_diagram.png) and summary.json into ``--out`` (default log/eval/<policy>-<time>/) and prints
 per speed band: tracking error, power, cost of
@@ -58,9 +58,10 @@ def resolve_policy(spec: str, config_path: str | None = None) -> tuple[Observati
 
 
 def in_stack_conditions(config: TrainConfig) -> TrainConfig:
-    """``config`` with the ground friction the sim bridge uses and no controller overrides: the
-    conditions of the node graph, whatever the policy was trained in."""
-    env = dataclasses.replace(config.env, ground_friction=SimConfig().ground_friction, controller={})
+    """``config`` with the ground friction and payload the sim bridge uses and no controller overrides:
+    the conditions of the node graph, whatever the policy was trained in."""
+    env = dataclasses.replace(config.env, ground_friction=SimConfig().ground_friction,
+                              payload_mass=SimConfig().payload_mass, controller={})
     return train_config_from_mapping(dataclasses.replace(config, env=env).to_dict())
 
 
@@ -112,7 +113,7 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--config", help="config for hand-tuned gaits (default config/train_es.yaml)")
     parser.add_argument("--stack-conditions", action="store_true",
-                        help="the sim bridge's ground friction and the deployed controller (not the training ones)")
+                        help="the sim bridge's friction and payload, the deployed controller (not the training ones)")
     parser.add_argument("--out", type=Path)
     parser.add_argument("--format", choices=("csv", "npz"), default="csv")
     return parser.parse_args(argv)
@@ -134,6 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     env = config.env
     print(f"eval_policy: {args.policy} on {env.world} ground (friction {env.ground_friction}"
+          f"{f', payload {env.payload_mass} kg' if env.payload_mass else ''}"
           f"{', controller ' + str(env.controller) if env.controller else ''}), {env.profile.kind} profile, "
           f"{env.episode_steps * POLICY_PERIOD:.1f} s", flush=True)
     stats, data = evaluate(policy, config, args.seed)

@@ -101,6 +101,7 @@ class EnvConfig:
     velocity_source: str = "estimator"  # what the policy and the controller see: estimator | ground_truth
     world: str = "flat"
     ground_friction: float = 0.8
+    payload_mass: float = 0.0  # [kg] on the simulated trunk (the reference simulates a 16.2 kg A1: 3.77)
     profile: ProfileConfig = field(default_factory=ProfileConfig)
     # Controller parameters by name over config/convex_mpc.yaml, for training in other conditions
     # than the deployed controller's (e.g. the reference's {mpc_friction_coefficient: 0.2}).
@@ -112,6 +113,7 @@ class EnvConfig:
         _choice("env.velocity_source", self.velocity_source, VELOCITY_SOURCES)
         _choice("env.world", self.world, WORLD_NAMES)
         require_range("env.ground_friction", self.ground_friction, 0.0, 5.0, low_open=True)
+        require_range("env.payload_mass", self.payload_mass, 0.0, 10.0)
         self.profile.validated()
         return self
 
