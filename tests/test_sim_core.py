@@ -51,6 +51,7 @@ def test_sensors_at_rest(sim):
     np.testing.assert_allclose(r.joint_position, sim.robot.nominal_joint_angles, atol=0.08)
     assert sim.time == pytest.approx(0.5)
 
+
 def test_payload_adds_its_weight_to_the_feet():
     loaded = A1Sim(SimConfig(payload_mass=3.77))
     try:
@@ -62,7 +63,6 @@ def test_payload_adds_its_weight_to_the_feet():
         assert loaded.sensors().foot_force.sum() == pytest.approx(weight, rel=0.05)
     finally:
         loaded.close()
-
 
 
 def test_reported_torque_is_the_clipped_applied_torque(sim):

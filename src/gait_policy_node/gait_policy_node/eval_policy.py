@@ -10,11 +10,11 @@ hand-tuned gaits by speed) or a hand-tuned gait name (walk, slow_trot, rapid_tro
 run uses the policy file's training config (observation, reward, controller inputs) or, for the
 others, config/train_es.yaml; the options above replace its
 profile and world. ``--stack-conditions`` runs a policy trained in other conditions (e.g. the
-reference's friction) where the stack runs it: the sim bridge's ground friction and payload and the deployed
-controller (config/convex_mpc.yaml alone). Writes per control step data (steps.csv or steps.npz), the gait diagram
-(gait_diagram.png) and summary.json into ``--out`` (default log/eval/<policy>-<time>/) and prints
-per speed band: tracking error, power, cost of
-transport, f, p_swing, offsets and the gait class, then the gait transitions.
+reference's friction) where the stack runs it: the sim bridge's ground friction and payload, and the
+deployed controller (config/convex_mpc.yaml alone). Writes per control step data (steps.csv or
+steps.npz), the gait diagram (gait_diagram.png) and summary.json into ``--out`` (default
+log/eval/<policy>-<time>/) and prints per speed band: tracking error, power, cost of transport, f,
+p_swing, offsets and the gait class, then the gait transitions.
 """
 
 from __future__ import annotations
