@@ -85,8 +85,17 @@ def test_the_policy_sees_a_cmd_vel_step_as_the_controller_tracks_it(rclpy_contex
     cmd_pub = io.create_publisher(Twist, "/cmd_vel", COMMAND_QOS)
     acceleration = load_supervisor_config().max_acceleration
     seen: list[tuple[float, float]] = []  # (node clock [s], desired vx the policy saw [m/s])
-    io.create_subscription(GaitParamsMsg, "/gait/params", lambda m: seen.append(
-        (m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, float(node.desired[0]))), COMMAND_QOS)
+    publisher = node.pub
+
+    class Recorder:
+        """Pairs each /gait/params stamp with the desired speed of the same tick. Read on receipt
+        instead, node.desired may already be a later tick's when the executor runs two ticks first."""
+
+        def publish(self, msg: GaitParamsMsg) -> None:
+            seen.append((msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, float(node.desired[0])))
+            publisher.publish(msg)
+
+    node.pub = Recorder()
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     executor.add_node(io)
