@@ -60,8 +60,9 @@ def resolve_policy(spec: str, config_path: str | None = None) -> tuple[Observati
 def in_stack_conditions(config: TrainConfig) -> TrainConfig:
     """``config`` with the ground friction and payload the sim bridge uses and no controller overrides:
     the conditions of the node graph, whatever the policy was trained in."""
-    env = dataclasses.replace(config.env, ground_friction=SimConfig().ground_friction,
-                              payload_mass=SimConfig().payload_mass, controller={})
+    bridge = SimConfig()
+    env = dataclasses.replace(config.env, ground_friction=bridge.ground_friction, payload_mass=bridge.payload_mass,
+                              controller={})
     return train_config_from_mapping(dataclasses.replace(config, env=env).to_dict())
 
 
